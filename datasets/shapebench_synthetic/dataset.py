@@ -1,0 +1,64 @@
+"""The ``synthetic`` dataset: watertight procedural meshes in ShapeNet-like categories.
+
+Nothing to download: objects are generated from (category, split, index, seed) by
+:mod:`shapebench_synthetic.shapes`, then preprocessed like ShapeNet (the paper's §4.1) and cached.
+Categories are split into *trained* and *novel* ones as the paper splits ShapeNet; the trained
+categories have ``train_per_category`` training and ``test_per_category`` test objects, the novel
+ones only test objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from shapebench.dataset import MeshDataset, MeshOptions
+from shapebench.hashing import stable_seed
+from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
+from shapebench_synthetic import shapes
+
+
+@dataclass(frozen=True)
+class SyntheticOptions(MeshOptions):
+    test_per_category: int = field(
+        default=2, metadata={"help": "test objects per category (raise it for a larger benchmark)"}
+    )
+    train_per_category: int = field(
+        default=8, metadata={"help": "training objects per trained category"}
+    )
+
+
+class SyntheticDataset(MeshDataset):
+    name = "synthetic"
+    display_name = "Synthetic ShapeNet-like"
+    description = (
+        f"{len(shapes.CATEGORIES)} procedural ShapeNet-like categories (trained and novel); "
+        "generated locally, no download"
+    )
+    Options: ClassVar[type] = SyntheticOptions
+    provides = frozenset({Supervision.SURFACE_POINTS})
+
+    @property
+    def version(self) -> str:
+        return f"gen{shapes.GENERATOR_VERSION}-prep1"
+
+    def categories(self) -> list[Category]:
+        return [Category(name, fam.split) for name, fam in shapes.CATEGORIES.items()]
+
+    def objects(self, split: str) -> list[ObjectRef]:
+        if split == TRAIN:
+            cat_split, count, prefix = TRAINED, self.options.train_per_category, "train"
+        elif split in (TRAINED, NOVEL):
+            cat_split, count, prefix = split, self.options.test_per_category, "test"
+        else:
+            raise ValueError(f"unknown split {split!r}; use train, trained or novel")
+        return [
+            ObjectRef(f"{cat.name}/{prefix}-{i:03d}", cat.name)
+            for cat in self.categories()
+            if cat.split == cat_split
+            for i in range(count)
+        ]
+
+    def mesh(self, ref: ObjectRef):
+        seed = stable_seed("synthetic", self.options.seed, ref.id) % (2**32)
+        return shapes.generate(ref.category, seed)

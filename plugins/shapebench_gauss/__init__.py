@@ -1,0 +1,1 @@
+"""Gauss densification: the paper's simplest baseline, as a shapebench method plugin."""

@@ -1,0 +1,8 @@
+"""Registers the ``gauss`` method (entry point ``gauss`` of the shapebench distribution)."""
+
+from shapebench import hookimpl
+
+
+@hookimpl
+def shapebench_register_methods(register):
+    register("gauss", "shapebench_gauss.method:GaussDensification")

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Create (or update) the project's virtual environment and install shapebench into it.
+#
+# torch is kept at whatever version the environment already has: a GPU user installs the torch
+# build for their platform first, and this script pins it with a constraints file so that no
+# dependency can replace it (an unpinned torch would pull a newer release with CUDA wheels).
+# Without torch, the CPU build torch==2.13.0 is installed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV="${SHAPEBENCH_VENV:-.venv}"
+PY="${PYTHON:-python3}"
+
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "[setup] creating virtual environment $VENV"
+  "$PY" -m venv "$VENV"
+fi
+pip_() { "$VENV/bin/python" -m pip --disable-pip-version-check "$@"; }
+
+if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
+  echo "[setup] no torch in $VENV: installing the CPU build torch==2.13.0"
+  pip_ install -q "torch==2.13.0"
+fi
+CONSTRAINTS="$VENV/shapebench-constraints.txt"
+"$VENV/bin/python" - > "$CONSTRAINTS" <<'PY'
+import torch
+print(f"torch=={torch.__version__}")
+PY
+echo "[setup] keeping $(cat "$CONSTRAINTS")"
+pip_ install -q -c "$CONSTRAINTS" -e ".[test]"
+echo "[setup] done: activate with 'source $VENV/bin/activate'"

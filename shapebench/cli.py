@@ -1,0 +1,450 @@
+"""The ``shapebench`` command line.
+
+Heavy imports (mlflow, trimesh, torch) happen inside commands, so ``shapebench --help`` and
+``shapebench plugins`` stay fast.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import click
+
+from shapebench import __version__
+from shapebench.errors import ShapebenchError
+
+DEFAULT_CONTEXTS = "50,100,300,1000"
+
+
+class Group(click.Group):
+    """Turns :class:`ShapebenchError` into one clear message instead of a traceback."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except ShapebenchError as exc:
+            if os.environ.get("SHAPEBENCH_DEBUG"):
+                raise
+            click.secho(f"Error: {exc.message}", fg="red", err=True)
+            if exc.hint:
+                click.echo(f"  hint: {exc.hint}", err=True)
+            sys.exit(2)
+        except KeyboardInterrupt:
+            click.echo(
+                "\nInterrupted: finished cells are kept; rerun the command to resume.", err=True
+            )
+            sys.exit(130)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    click.secho(f"Warning: {message}", fg="yellow", err=True)
+
+
+def _int_list(value: str, flag: str) -> list[int]:
+    try:
+        return [int(v) for v in str(value).split(",") if v.strip()]
+    except ValueError:
+        raise click.BadParameter(
+            f"expected comma-separated integers, got {value!r}", param_hint=flag
+        ) from None
+
+
+def store_options(f):
+    """Where runs and data go: shared by every command that touches them."""
+    f = click.option(
+        "--workspace",
+        type=click.Path(file_okay=False),
+        default=None,
+        help="Folder of the embedded MLflow store and checkpoints "
+        "[default: ./shapebench-runs, or $SHAPEBENCH_WORKSPACE].",
+    )(f)
+    f = click.option(
+        "--cache-dir",
+        type=click.Path(file_okay=False),
+        default=None,
+        help="Where preprocessed data is cached "
+        "[default: ~/.cache/shapebench, or $SHAPEBENCH_CACHE_DIR].",
+    )(f)
+    f = click.option(
+        "--tracking-uri",
+        default=None,
+        metavar="URI",
+        help="MLflow tracking URI, e.g. http://127.0.0.1:5000 "
+        "[default: $MLFLOW_TRACKING_URI, else sqlite in the workspace].",
+    )(f)
+    f = click.option(
+        "--profile",
+        default=None,
+        help="Config profile: quick (CPU, default) or paper (the paper's scale).",
+    )(f)
+    return f
+
+
+def trainer_options(f):
+    """Lightning Trainer settings, passed through to trainable methods."""
+    for name, kw in reversed(
+        [
+            ("--accelerator", dict(default=None, help="cpu, gpu, auto... [profile, else auto]")),
+            ("--devices", dict(default=None, help="Devices per node, e.g. 2 or auto.")),
+            ("--strategy", dict(default=None, help="auto, ddp, ddp_spawn, fsdp...")),
+            ("--num-nodes", dict(type=int, default=None, help="Nodes for multi-node training.")),
+            ("--precision", dict(default=None, help="32-true, bf16-mixed, 16-mixed...")),
+            ("--max-epochs", dict(type=int, default=None, help="Training epochs [profile].")),
+        ]
+    ):
+        f = click.option(name, **kw)(f)
+    return f
+
+
+def plugin_options(f):
+    f = click.option(
+        "--data-root",
+        type=click.Path(),
+        default=None,
+        help="Local copy of the dataset (for datasets you download yourself).",
+    )(f)
+    f = click.option(
+        "-D",
+        "dataset_opts",
+        multiple=True,
+        metavar="KEY=VALUE",
+        help="Dataset option, e.g. -D test_per_category=10 (repeatable).",
+    )(f)
+    f = click.option(
+        "-O",
+        "method_opts",
+        multiple=True,
+        metavar="KEY=VALUE",
+        help="Method option, e.g. -O sigma=0.02 (repeatable).",
+    )(f)
+    return f
+
+
+def _settings(profile, tracking_uri, cache_dir, workspace):
+    from shapebench.config import make_settings
+
+    return make_settings(tracking_uri, cache_dir, profile, workspace)
+
+
+def _trainer(settings, seed: int, **given) -> Any:
+    from dataclasses import fields
+
+    from shapebench.method import TrainerOptions
+
+    values = dict(settings.profile.get("trainer") or {})
+    values.update({k: v for k, v in given.items() if v is not None})
+    known = {f.name for f in fields(TrainerOptions)}
+    values = {k: v for k, v in values.items() if k in known}
+    values["seed"] = seed
+    return TrainerOptions(**values)
+
+
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="shapebench")
+def cli() -> None:
+    """Benchmark few-shot 3D shape completion.
+
+    Every method completes the same sparse context points (50 to 1000 surface points per
+    object), is scored with an explicitly defined Chamfer distance, and logged to MLflow.
+
+    \b
+    Start here:
+      shapebench run --method gauss --dataset synthetic   # evaluate one method
+      shapebench sweep configs/sweeps/default.yaml        # methods x datasets x contexts
+      shapebench leaderboard --dataset synthetic          # tables like the paper's
+      shapebench ui                                       # compare runs in MLflow
+      shapebench plugins                                  # what is installed
+    """
+
+
+@cli.command()
+@click.option("--method", "-m", required=True, help="Method name (see 'shapebench methods').")
+@click.option("--dataset", "-d", required=True, help="Dataset name (see 'shapebench datasets').")
+@click.option(
+    "--split",
+    "splits",
+    default=None,
+    help="Comma-separated evaluation splits [default: trained,novel].",
+)
+@click.option(
+    "--contexts", default=DEFAULT_CONTEXTS, show_default=True, help="Comma-separated context sizes."
+)
+@click.option("--seeds", default="0", show_default=True, help="Comma-separated run seeds.")
+@click.option(
+    "--metric",
+    "metrics",
+    multiple=True,
+    help="Metrics to compute [default: every installed metric].",
+)
+@click.option(
+    "--checkpoint",
+    type=click.Path(exists=True),
+    default=None,
+    help="Use this checkpoint instead of training (trainable methods).",
+)
+@click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
+@plugin_options
+@trainer_options
+@store_options
+def run(
+    method,
+    dataset,
+    splits,
+    contexts,
+    seeds,
+    metrics,
+    checkpoint,
+    force,
+    quiet,
+    method_opts,
+    dataset_opts,
+    data_root,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+    **trainer,
+) -> None:
+    """Evaluate METHOD on DATASET at every context size; log to MLflow; print a summary.
+
+    Cells (split x context size x seed) that already have a finished run with the same
+    resolved configuration are skipped, so an interrupted run resumes where it stopped.
+
+    \b
+    Examples:
+      shapebench run --method gauss --dataset synthetic
+      shapebench run -m gauss -d synthetic --contexts 50,100 -O sigma=0.02 --quiet
+      shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
+    """
+    from shapebench.orchestrate import EvalRequest, evaluate
+    from shapebench.report import print_summary
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    req = EvalRequest(
+        method=method,
+        dataset=dataset,
+        splits=splits.split(",") if splits else None,
+        contexts=_int_list(contexts, "--contexts"),
+        seeds=_int_list(seeds, "--seeds"),
+        method_opts=_parse(method_opts, "-O"),
+        dataset_opts=_parse(dataset_opts, "-D"),
+        data_root=data_root,
+        metrics=list(metrics) or None,
+        checkpoint=checkpoint,
+        force=force,
+        quiet=quiet,
+    )
+    outcome = evaluate(req, settings, lambda seed: _trainer(settings, seed, **trainer))
+    print_summary(outcome, settings)
+
+
+def _parse(pairs, flag) -> dict:
+    from shapebench.options import parse_assignments
+
+    return parse_assignments(pairs, flag)
+
+
+@cli.command()
+@click.argument("sweep_file", type=click.Path(dir_okay=False))
+@click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
+@trainer_options
+@store_options
+def sweep(sweep_file, force, quiet, profile, tracking_uri, cache_dir, workspace, **trainer) -> None:
+    """Run every method x dataset x split x context size x seed of SWEEP_FILE.
+
+    Finished cells (same resolved config hash) are skipped: rerun the same command after
+    Ctrl-C or a crash and only the missing cells run. --force recomputes everything.
+
+    \b
+    A sweep file (YAML):
+      name: default
+      profile: quick                 # optional
+      methods: all                   # or a list: [gauss, {name: gauss, options: {sigma: 0.02}}]
+      datasets: [synthetic]          # or [{name: synthetic, options: {...}, data_root: ...}]
+      splits: [trained, novel]
+      contexts: [50, 100, 300, 1000]
+      seeds: [0]
+    """
+    from shapebench.report import print_summary
+    from shapebench.sweep import load_sweep, run_sweep
+
+    spec = load_sweep(Path(sweep_file))
+    settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
+    for outcome in run_sweep(
+        spec, settings, force, quiet, lambda seed: _trainer(settings, seed, **trainer)
+    ):
+        print_summary(outcome, settings)
+
+
+@cli.command()
+@click.option("--method", "-m", required=True, help="Method name.")
+@click.option("--dataset", "-d", required=True, help="Dataset to train on (its train split).")
+@click.option("--seed", default=0, show_default=True, help="Training seed.")
+@click.option("--quiet", "-q", is_flag=True, help="Less output.")
+@plugin_options
+@trainer_options
+@store_options
+def train(
+    method,
+    dataset,
+    seed,
+    quiet,
+    method_opts,
+    dataset_opts,
+    data_root,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+    **trainer,
+) -> None:
+    """Train METHOD on DATASET's train split (one Lightning Trainer.fit in this process).
+
+    The checkpoint is keyed by (method config, dataset, seed) and reused by 'run' and 'sweep';
+    an interrupted training resumes from its last checkpoint.
+    """
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.training import train_here
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    reg = get_registry()
+    resolved = resolve_method(reg, method, settings, _parse(method_opts, "-O"))
+    if not resolved.cls.trains:
+        raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
+    ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
+    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings)
+    click.echo(f"checkpoint: {record['path']}")
+
+
+@cli.command()
+@click.option("--dataset", "-d", required=True, help="Dataset whose runs to tabulate.")
+@click.option(
+    "--split",
+    "splits",
+    default=None,
+    help="Comma-separated splits [default: every split with runs].",
+)
+@click.option(
+    "--reference",
+    default="msc-noopt",
+    show_default=True,
+    help="Method the normalised table divides by (paper's eq. 8).",
+)
+@click.option("--metric", default=None, help="Metric to rank by [default: the dataset's].")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="leaderboards",
+    show_default=True,
+    help="Where the .md and .csv files are written.",
+)
+@store_options
+def leaderboard(
+    dataset, splits, reference, metric, out_dir, profile, tracking_uri, cache_dir, workspace
+) -> None:
+    """Build raw and normalised Chamfer tables for DATASET from the runs in MLflow.
+
+    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3
+    (method x context size, mean ± std over objects, object and failure counts). For ShapeNet
+    and ICL-NUIM the paper's own figures are shown beside ours, labelled as the paper's.
+    """
+    from shapebench.leaderboard import build_leaderboards
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    for path in build_leaderboards(
+        settings, dataset, splits.split(",") if splits else None, reference, metric, Path(out_dir)
+    ):
+        click.echo(f"wrote {path}")
+
+
+@cli.command()
+def plugins() -> None:
+    """List installed plugins: distribution, version, module, what each provides."""
+    from shapebench.report import print_plugins
+
+    print_plugins()
+
+
+@cli.command()
+def methods() -> None:
+    """Describe every installed method: options, supervision needed, whether it trains."""
+    from shapebench.report import describe_kind
+
+    describe_kind("method")
+
+
+@cli.command()
+def datasets() -> None:
+    """Describe every installed dataset: categories, splits and options."""
+    from shapebench.report import describe_kind
+
+    describe_kind("dataset")
+
+
+@cli.command()
+def metrics() -> None:
+    """Describe every installed metric and its card (the exact convention)."""
+    from shapebench.report import describe_kind
+
+    describe_kind("metric")
+
+
+@cli.command()
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to bind; 0.0.0.0 exposes the UI to your network.",
+)
+@click.option("--port", default=5000, show_default=True, help="Port to listen on.")
+@store_options
+def ui(host, port, profile, tracking_uri, cache_dir, workspace) -> None:
+    """Start the MLflow UI on the configured store and print its URL."""
+    import subprocess
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    if settings.is_remote:
+        click.echo(
+            f"Runs are on the tracking server {settings.tracking_uri}: open it in a browser."
+        )
+        return
+    settings.artifact_root.mkdir(parents=True, exist_ok=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "mlflow",
+        "ui",
+        "--backend-store-uri",
+        settings.tracking_uri,
+        "--default-artifact-root",
+        settings.artifact_root.as_uri(),
+        "--host",
+        host,
+        "--port",
+        str(port),
+    ]
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    click.echo(f"MLflow UI: http://{shown}:{port}  (store {settings.tracking_uri}; Ctrl-C stops)")
+    click.echo("Runs are grouped in one experiment per dataset and split, e.g. synthetic-novel.")
+    with contextlib.suppress(KeyboardInterrupt):
+        subprocess.run(cmd, check=False)
+
+
+def main() -> None:
+    import logging
+
+    warnings.showwarning = _show_warning
+    # MLflow's own progress bars and INFO lines would interleave with ours.
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    cli(prog_name="shapebench")

@@ -1,0 +1,129 @@
+"""Configuration: YAML files under ``configs/``, profiles, and where things are stored.
+
+Option values are resolved in this order, later ones winning:
+
+1. the plugin's own defaults (its ``Options`` dataclass);
+2. ``configs/methods/<name>.yaml`` or ``configs/datasets/<name>.yaml``;
+3. the profile (``configs/profiles/<profile>.yaml``: ``quick`` for a CPU, ``paper`` for the
+   paper's scale), under its ``methods:``/``datasets:``/``trainer:`` keys;
+4. the sweep file's per-entry options (``shapebench sweep``);
+5. command-line flags (``-O key=value`` for the method, ``-D key=value`` for the dataset).
+
+``configs/`` is looked up in ``$SHAPEBENCH_CONFIG_DIR``, then ``./configs``, then the source
+checkout shapebench was installed from.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from shapebench.errors import ConfigError, UnknownNameError
+
+DEFAULT_PROFILE = "quick"
+WORKSPACE_DIRNAME = "shapebench-runs"
+
+
+def config_dirs() -> list[Path]:
+    dirs = []
+    if os.environ.get("SHAPEBENCH_CONFIG_DIR"):
+        dirs.append(Path(os.environ["SHAPEBENCH_CONFIG_DIR"]))
+    dirs.append(Path.cwd() / "configs")
+    dirs.append(Path(__file__).resolve().parents[1] / "configs")
+    seen, out = set(), []
+    for d in dirs:
+        if d.is_dir() and d.resolve() not in seen:
+            seen.add(d.resolve())
+            out.append(d)
+    return out
+
+
+def read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except FileNotFoundError as exc:
+        raise ConfigError(f"config file not found: {path}") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} must hold a mapping at the top level")
+    return data
+
+
+def _find(kind: str, name: str) -> Path | None:
+    for d in config_dirs():
+        path = d / kind / f"{name}.yaml"
+        if path.exists():
+            return path
+    return None
+
+
+def available_profiles() -> list[str]:
+    return sorted({p.stem for d in config_dirs() for p in (d / "profiles").glob("*.yaml")})
+
+
+def load_profile(name: str) -> dict[str, Any]:
+    path = _find("profiles", name)
+    if path is None:
+        raise UnknownNameError(
+            "profile",
+            name,
+            available_profiles(),
+            hint="profiles live in "
+            "configs/profiles/<name>.yaml; set SHAPEBENCH_CONFIG_DIR to use yours",
+        )
+    return read_yaml(path)
+
+
+def plugin_overrides(kind: str, name: str, profile: dict[str, Any]) -> dict[str, Any]:
+    """Options for method/dataset ``name`` from its config file and the profile."""
+    values: dict[str, Any] = {}
+    path = _find(f"{kind}s", name)
+    if path is not None:
+        values.update(read_yaml(path).get("options", {}) or {})
+    values.update((profile.get(f"{kind}s") or {}).get(name, {}) or {})
+    return values
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Where runs, artifacts and cached data go."""
+
+    tracking_uri: str
+    artifact_root: Path
+    cache_dir: Path
+    profile_name: str
+    profile: dict[str, Any]
+
+    @property
+    def is_remote(self) -> bool:
+        return self.tracking_uri.startswith(("http://", "https://"))
+
+
+def default_cache_dir() -> Path:
+    if os.environ.get("SHAPEBENCH_CACHE_DIR"):
+        return Path(os.environ["SHAPEBENCH_CACHE_DIR"])
+    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(xdg) / "shapebench"
+
+
+def make_settings(
+    tracking_uri: str | None = None,
+    cache_dir: str | Path | None = None,
+    profile: str | None = None,
+    workspace: str | Path | None = None,
+) -> Settings:
+    ws = Path(workspace or os.environ.get("SHAPEBENCH_WORKSPACE") or WORKSPACE_DIRNAME).absolute()
+    uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{ws / 'mlflow.db'}"
+    profile_name = profile or os.environ.get("SHAPEBENCH_PROFILE") or DEFAULT_PROFILE
+    return Settings(
+        tracking_uri=uri,
+        artifact_root=ws / "artifacts",
+        cache_dir=Path(cache_dir) if cache_dir else default_cache_dir(),
+        profile_name=profile_name,
+        profile=load_profile(profile_name),
+    )

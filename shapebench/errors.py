@@ -1,0 +1,49 @@
+"""Errors a user can act on.
+
+Every error that reaches the command line is a :class:`ShapebenchError`: one message naming the bad
+input and, where there is one, a hint saying how to fix it. The CLI prints both and exits with
+status 2 instead of showing a traceback (set ``SHAPEBENCH_DEBUG=1`` to see it anyway).
+"""
+
+from __future__ import annotations
+
+
+class ShapebenchError(Exception):
+    """A problem with the user's input or environment, reported without a traceback."""
+
+    def __init__(self, message: str, hint: str | None = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.hint = hint
+
+    def __str__(self) -> str:
+        return self.message if not self.hint else f"{self.message}\n  hint: {self.hint}"
+
+
+class UnknownNameError(ShapebenchError):
+    """A method, dataset, metric, profile or option name that nothing provides."""
+
+    def __init__(self, kind: str, name: str, available: list[str], hint: str | None = None) -> None:
+        listed = ", ".join(sorted(available)) or "(none installed)"
+        super().__init__(
+            f"unknown {kind} {name!r}; available: {listed}",
+            hint or f"run 'shapebench {kind}s' to see what each {kind} does",
+        )
+        self.name = name
+        self.available = sorted(available)
+
+
+class PluginConflictError(ShapebenchError):
+    """Two installed distributions register the same method, dataset or metric name."""
+
+
+class DataNotFoundError(ShapebenchError):
+    """A dataset's files are missing: the message says where they were looked for."""
+
+
+class TrackingError(ShapebenchError):
+    """The MLflow tracking store cannot be reached or used."""
+
+
+class ConfigError(ShapebenchError):
+    """A configuration file or option value that cannot be used."""

@@ -1,0 +1,1 @@
+"""Geometry helpers: nearest neighbours, surface sampling, point-cloud files."""

@@ -1,0 +1,15 @@
+"""Registers the built-in metrics (entry point ``metrics`` of the shapebench distribution)."""
+
+from shapebench import hookimpl
+
+
+@hookimpl
+def shapebench_register_metrics(register):
+    for name, cls in [
+        ("chamfer-l2", "ChamferL2"),
+        ("chamfer-l1", "ChamferL1"),
+        ("chamfer-l2-asym", "ChamferL2Asym"),
+        ("chamfer-l1-asym", "ChamferL1Asym"),
+    ]:
+        register(name, f"shapebench.metrics.chamfer:{cls}")
+    register("fscore", "shapebench.metrics.fscore:FScore")

@@ -1,0 +1,115 @@
+"""What the CLI prints: run summaries and plugin descriptions."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import TYPE_CHECKING
+
+import click
+
+if TYPE_CHECKING:
+    from shapebench.config import Settings
+    from shapebench.orchestrate import EvalOutcome
+
+
+def _pm(mean: float | None, std: float | None, scale: float) -> str:
+    if mean is None:
+        return "-"
+    return f"{mean * scale:.3f} ± {(std or 0.0) * scale:.3f}"
+
+
+def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
+    """Raw Chamfer x1000 (mean ± std over objects) per split and context size, and failures."""
+    metric = outcome.primary_metric
+    by_split = defaultdict(list)
+    for cell in outcome.cells:
+        by_split[cell.split].append(cell)
+    name = outcome.method.name
+    for split, cells in by_split.items():
+        exp_id = cells[0].experiment_id
+        click.echo("")
+        click.secho(f"{name} on {outcome.dataset.name}/{split}: {metric} x1000", bold=True)
+        click.echo(
+            f"  {'context':>7}  {'seed':>4}  {'objects':>7}  {'failed':>6}  "
+            f"{'mean ± std':>18}  {'run':<9}"
+        )
+        for c in sorted(cells, key=lambda c: (c.seed, c.context_size)):
+            m = c.metrics
+            value = _pm(m.get(f"{metric}.mean"), m.get(f"{metric}.std"), 1000.0)
+            state = "cached" if c.skipped else "new"
+            click.echo(
+                f"  {c.context_size:>7}  {c.seed:>4}  {int(m.get('n_objects', 0)):>7}  "
+                f"{int(m.get('failures', 0)):>6}  {value:>18}  {state:<9}"
+            )
+        failed = sum(int(c.metrics.get("failures", 0)) for c in cells)
+        if failed:
+            click.secho(
+                f"  {failed} object evaluations failed: see per_object.csv in each run", fg="yellow"
+            )
+        click.echo(f"  MLflow experiment {outcome.dataset.name}-{split} (id {exp_id})")
+    click.echo("")
+    click.echo(f"Runs are in {settings.tracking_uri}")
+    if settings.is_remote:
+        click.echo(f"  open {settings.tracking_uri}")
+    else:
+        click.echo("  compare them: shapebench ui   (then open the URL it prints)")
+    click.echo(f"  tables:       shapebench leaderboard --dataset {outcome.dataset.name}")
+
+
+def print_plugins() -> None:
+    from shapebench.registry import KINDS, get_registry
+
+    reg = get_registry()
+    if not reg.plugins:
+        click.echo("No shapebench plugins are installed.")
+        return
+    click.echo(f"{'plugin':<16} {'distribution':<22} {'version':<10} module")
+    for p in reg.plugins:
+        click.echo(f"{p.name:<16} {p.distribution:<22} {p.version:<10} {p.module}")
+        for kind in KINDS:
+            if p.provides[kind]:
+                click.echo(f"{'':<16}   {kind}s: {', '.join(p.provides[kind])}")
+        if p.error:
+            click.secho(f"{'':<16}   error: {p.error}", fg="red")
+    for kind, name, regs in reg.conflicts():
+        owners = " and ".join(f"{r.plugin.distribution} ({r.plugin.name})" for r in regs)
+        click.secho(f"conflict: {kind} {name!r} is provided by {owners}", fg="red")
+
+
+def describe_kind(kind: str) -> None:
+    from shapebench.errors import ShapebenchError
+    from shapebench.options import describe
+    from shapebench.registry import get_registry
+
+    reg = get_registry()
+    names = reg.names(kind)
+    if not names:
+        click.echo(f"No {kind}s are installed.")
+    for name in names:
+        try:
+            entry = reg.get(kind, name)
+            cls = entry.load()
+        except ShapebenchError as exc:
+            click.secho(f"{name}: {exc.message}", fg="red")
+            continue
+        origin = f"{entry.plugin.distribution} {entry.plugin.version}"
+        click.secho(f"{name}", bold=True, nl=False)
+        click.echo(f"  ({origin}): {getattr(cls, 'description', '')}")
+        if kind == "method":
+            sup = ", ".join(sorted(str(s) for s in cls.supervision)) or "context only"
+            click.echo(f"    trains: {'yes' if cls.trains else 'no'}; needs: {sup}")
+        elif kind == "dataset":
+            click.echo(
+                f"    splits: {', '.join(cls.eval_splits)}; default metric: "
+                f"{cls.default_metric}; needs --data-root: "
+                f"{'yes' if cls.needs_data_root else 'no'}"
+            )
+        elif kind == "metric":
+            click.echo(
+                f"    {'higher' if cls.higher_is_better else 'lower'} is better; card: "
+                f"{cls().card(30000).describe()}"
+            )
+        if kind != "metric":
+            for opt in describe(cls.Options):
+                click.echo(f"    {opt.name} ({opt.type}, default {opt.default!r}): {opt.help}")
+        click.echo("")

@@ -1,0 +1,92 @@
+"""From names and overrides to configured method, dataset and metric instances."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shapebench import options as opts
+from shapebench.config import Settings, plugin_overrides
+from shapebench.dataset import Dataset
+from shapebench.errors import ConfigError, DataNotFoundError
+from shapebench.method import Method
+from shapebench.metric import Metric
+from shapebench.registry import Registration, Registry
+
+
+@dataclass
+class ResolvedMethod:
+    registration: Registration
+    cls: type[Method]
+    options: Any
+
+    @property
+    def name(self) -> str:
+        return self.registration.name
+
+    @property
+    def display_name(self) -> str:
+        return self.cls.display_name or self.name
+
+    def config(self) -> dict[str, Any]:
+        plugin = self.registration.plugin
+        return {
+            "name": self.name,
+            "options": opts.as_dict(self.options),
+            "distribution": plugin.distribution,
+            "version": plugin.version,
+        }
+
+    def instantiate(self) -> Method:
+        method = self.cls(self.options)
+        return method
+
+
+def resolve_method(
+    registry: Registry, name: str, settings: Settings, *overrides: dict[str, Any]
+) -> ResolvedMethod:
+    reg = registry.get("method", name)
+    cls = reg.load()
+    values = plugin_overrides("method", name, settings.profile)
+    for o in overrides:
+        values.update(o or {})
+    return ResolvedMethod(reg, cls, opts.build(cls.Options, values, f"method {name!r}"))
+
+
+def resolve_dataset(
+    registry: Registry,
+    name: str,
+    settings: Settings,
+    data_root: str | Path | None,
+    *overrides: dict[str, Any],
+) -> Dataset:
+    reg = registry.get("dataset", name)
+    cls = reg.load()
+    values = plugin_overrides("dataset", name, settings.profile)
+    for o in overrides:
+        values.update(o or {})
+    options = opts.build(cls.Options, values, f"dataset {name!r}")
+    root = data_root or os.environ.get(f"SHAPEBENCH_{name.upper().replace('-', '_')}_ROOT")
+    if cls.needs_data_root:
+        hint = (
+            getattr(cls, "obtain_hint", None) or f"pass --data-root pointing to your copy of {name}"
+        )
+        if not root:
+            raise DataNotFoundError(
+                f"dataset {name!r} reads a local copy, and none was given", hint
+            )
+        if not Path(root).exists():
+            raise DataNotFoundError(f"data root {root} for dataset {name!r} does not exist", hint)
+    elif root and not Path(root).exists():
+        raise DataNotFoundError(f"data root {root} does not exist")
+    dataset = cls(options, settings.cache_dir, Path(root) if root else None)
+    return dataset
+
+
+def resolve_metrics(registry: Registry, names: list[str] | None) -> list[Metric]:
+    names = names or registry.names("metric")
+    if not names:
+        raise ConfigError("no metric is installed", "reinstall shapebench: it provides chamfer-l2")
+    return [registry.load("metric", n)() for n in names]

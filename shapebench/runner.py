@@ -1,0 +1,381 @@
+"""Evaluate one method on one dataset: every split, context size and seed is a *cell*.
+
+For each cell the runner draws the (stored) contexts, asks the method for completions, scores
+them with every metric, and logs one MLflow child run with the per-object table as an artifact.
+A failure of one object (unreadable mesh, NaN output, an exception in the method) is recorded in
+that table and counted; the other objects go on.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import tempfile
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from shapebench import __version__
+from shapebench.contexts import CONTEXTS_VERSION, ContextStore, contexts_digest
+from shapebench.dataset import Dataset, ObjectLoadError
+from shapebench.errors import ShapebenchError
+from shapebench.hashing import stable_hash
+from shapebench.method import Method
+from shapebench.metric import Metric
+from shapebench.provenance import git_commit
+from shapebench.resolve import ResolvedMethod
+from shapebench.tracking import CELL_KIND, PARENT_KIND, Tracker, experiment_name, flatten
+from shapebench.types import Completion, Context, ObjectData, ObjectRef
+
+PROTOCOL_VERSION = "1"
+EXAMPLE_PLYS = 3  # completed point clouds logged per cell, for a look in the MLflow UI
+
+
+@dataclass
+class CellResult:
+    split: str
+    context_size: int
+    seed: int
+    run_id: str
+    skipped: bool
+    metrics: dict[str, float]
+    experiment_id: str
+
+
+@dataclass
+class RunPlan:
+    method: ResolvedMethod
+    dataset: Dataset
+    splits: list[str]
+    contexts: list[int]
+    seeds: list[int]
+    metrics: list[Metric]
+    force: bool = False
+    quiet: bool = False
+    checkpoint: dict[str, str] = field(default_factory=dict)  # key/path/run id when trained
+    parent_name: str | None = None
+
+
+def validate_contexts(contexts: list[int]) -> list[int]:
+    if not contexts:
+        raise ShapebenchError("no context sizes given", "e.g. --contexts 50,100,300,1000")
+    bad = [c for c in contexts if not isinstance(c, int) or c <= 0]
+    if bad:
+        raise ShapebenchError(f"context sizes must be positive integers, got {bad}")
+    return sorted(set(contexts))
+
+
+def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: int) -> dict:
+    """Everything that determines a cell's result; its hash is the cell key."""
+    ds = plan.dataset
+    return {
+        "protocol": PROTOCOL_VERSION,
+        "method": plan.method.config(),
+        "dataset": {
+            "name": ds.name,
+            "version": ds.version,
+            "fingerprint": ds.fingerprint(),
+            "options": flatten("", _asdict(ds.options)),
+        },
+        "split": split,
+        "context_size": size,
+        "seed": seed,
+        "contexts": CONTEXTS_VERSION,
+        "metrics": {m.name: m.card(eval_points).as_tag() for m in plan.metrics},
+        "checkpoint": plan.checkpoint.get("key"),
+    }
+
+
+def _asdict(options: Any) -> dict:
+    from dataclasses import asdict, is_dataclass
+
+    return asdict(options) if is_dataclass(options) else {}
+
+
+class ObjectCache:
+    """Keeps recently loaded objects in memory across the cells of a run."""
+
+    def __init__(self, dataset: Dataset, capacity: int = 64) -> None:
+        self.dataset = dataset
+        self.capacity = capacity
+        self._items: OrderedDict[str, ObjectData | ObjectLoadError] = OrderedDict()
+
+    def get(self, ref: ObjectRef) -> ObjectData:
+        item = self._items.get(ref.id)
+        if item is None:
+            try:
+                item = self.dataset.load(ref)
+            except ObjectLoadError as exc:
+                item = exc
+            self._items[ref.id] = item
+            if len(self._items) > self.capacity:
+                self._items.popitem(last=False)
+        else:
+            self._items.move_to_end(ref.id)
+        if isinstance(item, ObjectLoadError):
+            raise item
+        return item
+
+
+def _progress(total: int, desc: str, quiet: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="obj", disable=quiet, leave=False, file=sys.stderr)
+
+
+def check_context_sizes(
+    refs: list[ObjectRef], cache: ObjectCache, sizes: list[int], quiet: bool, label: str
+) -> None:
+    """Load (and if needed preprocess) every object; refuse sizes some object cannot provide."""
+    fewest: tuple[int, str] | None = None
+    with _progress(len(refs), f"preparing {label}", quiet) as bar:
+        for ref in refs:
+            try:
+                n = len(cache.get(ref).surface_points)
+                if fewest is None or n < fewest[0]:
+                    fewest = (n, ref.id)
+            except ObjectLoadError:
+                pass  # counted as a failure in every cell
+            bar.update()
+    if fewest is not None and max(sizes) > fewest[0]:
+        raise ShapebenchError(
+            f"context size {max(sizes)} is larger than the {fewest[0]} visible surface points of "
+            f"object {fewest[1]!r} ({label})",
+            f"use context sizes up to {fewest[0]}, or sample more surface points "
+            "(-D surface_candidates=...)",
+        )
+
+
+def _valid_points(completion: Any) -> str | None:
+    """Why a completion cannot be scored, or None if it can."""
+    if not isinstance(completion, Completion):
+        return f"complete() returned {type(completion).__name__}, not a Completion"
+    pts = np.asarray(completion.points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        return f"completion points have shape {pts.shape}, expected (n, 3)"
+    if len(pts) == 0:
+        return "completion has no points"
+    if not np.all(np.isfinite(pts)):
+        return f"completion has {int((~np.isfinite(pts)).any(axis=1).sum())} NaN/inf points"
+    return None
+
+
+def evaluate_object(
+    method: Method, data: ObjectData, ctx: Context, metrics: list[Metric]
+) -> tuple[dict[str, Any], Completion | None]:
+    row: dict[str, Any] = {"status": "ok", "error": ""}
+    start = time.perf_counter()
+    try:
+        completion = method.complete(ctx, n_points=len(data.gt_points))
+    except Exception as exc:  # the method's bug must not lose the other objects
+        row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
+        return row, None
+    finally:
+        row["seconds"] = time.perf_counter() - start
+    problem = _valid_points(completion)
+    if problem:
+        row.update(status="failed", error=problem)
+        return row, None
+    completion.points = np.asarray(completion.points, dtype=np.float32)
+    row["n_points"] = len(completion.points)
+    for metric in metrics:
+        try:
+            value = float(metric.compute(completion, data, ctx))
+        except Exception as exc:
+            row.update(status="failed", error=f"metric {metric.name}: {type(exc).__name__}: {exc}")
+            return row, None
+        if not math.isfinite(value):
+            row.update(status="failed", error=f"metric {metric.name} is {value}")
+            return row, None
+        row[metric.name] = value
+    for key, value in (completion.info or {}).items():
+        row[f"info.{key}"] = value
+    return row, completion
+
+
+def summarize(table: pd.DataFrame, metrics: list[Metric]) -> dict[str, float]:
+    ok = table[table["status"] == "ok"]
+    out: dict[str, float] = {
+        "n_objects": float(len(table)),
+        "failures": float(len(table) - len(ok)),
+    }
+    for m in metrics:
+        values = ok[m.name].to_numpy(dtype=float) if m.name in ok else np.array([])
+        if len(values):
+            out[f"{m.name}.mean"] = float(values.mean())
+            out[f"{m.name}.std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
+            out[f"{m.name}.median"] = float(np.median(values))
+    out["seconds_per_object"] = float(table["seconds"].mean()) if len(table) else 0.0
+    return out
+
+
+class Runner:
+    """Runs the cells of a :class:`RunPlan`, logging each to MLflow."""
+
+    def __init__(self, tracker: Tracker, echo: Callable[[str], None] = print) -> None:
+        self.tracker = tracker
+        self.echo = echo
+
+    def run(self, plan: RunPlan, make_method: Callable[[], Method]) -> list[CellResult]:
+        """Run the plan's pending cells; ``make_method`` is called only if some cell is pending
+        (for trainable methods it trains or loads the checkpoint)."""
+        method: Method | None = None
+        sizes = validate_contexts(plan.contexts)
+        results: list[CellResult] = []
+        cache = ObjectCache(plan.dataset)
+        store = ContextStore(
+            getattr(plan.dataset, "cache_root", plan.dataset.cache_dir), plan.dataset.fingerprint()
+        )
+        for split in plan.splits:
+            refs = plan.dataset.objects(split)
+            if not refs:
+                self.echo(f"  {plan.dataset.name}/{split}: no objects, skipped")
+                continue
+            exp_id = self.tracker.experiment_id(experiment_name(plan.dataset.name, split))
+            eval_points = (
+                plan.dataset.options.gt_points if hasattr(plan.dataset.options, "gt_points") else 0
+            )
+            pending = []
+            for seed in plan.seeds:
+                for size in sizes:
+                    cfg = cell_config(plan, split, size, seed, eval_points)
+                    key = stable_hash(cfg)
+                    done = None if plan.force else self.tracker.find_cell(exp_id, key)
+                    if done is not None:
+                        results.append(
+                            CellResult(split, size, seed, done.run_id, True, done.metrics, exp_id)
+                        )
+                    else:
+                        pending.append((seed, size, cfg, key))
+            if not pending:
+                continue
+            check_context_sizes(
+                refs, cache, [p[1] for p in pending], plan.quiet, f"{plan.dataset.name}/{split}"
+            )
+            if method is None:
+                method = make_method()
+            parent = self.tracker.start_run(
+                exp_id,
+                plan.parent_name or f"{plan.method.name} on {plan.dataset.name}/{split}",
+                {
+                    "shapebench.kind": PARENT_KIND,
+                    "method": plan.method.name,
+                    "dataset": plan.dataset.name,
+                    "split": split,
+                },
+            )
+            try:
+                for seed, size, cfg, key in pending:
+                    results.append(
+                        self._run_cell(
+                            plan,
+                            method,
+                            split,
+                            refs,
+                            cache,
+                            store,
+                            exp_id,
+                            parent,
+                            seed,
+                            size,
+                            cfg,
+                            key,
+                        )
+                    )
+            except BaseException:
+                self.tracker.end(parent, "KILLED")
+                raise
+            self.tracker.end(parent)
+        return results
+
+    def _run_cell(
+        self, plan, method, split, refs, cache, store, exp_id, parent, seed, size, cfg, key
+    ) -> CellResult:
+        tr = self.tracker
+        tr.abandon_stale(exp_id, key)
+        tags = self._tags(plan, split, size, seed, key, cfg)
+        run_id = tr.start_run(exp_id, f"{plan.method.name} k={size} seed={seed}", tags, parent)
+        try:
+            rows, contexts, examples = [], [], []
+            label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
+            with _progress(len(refs), label, plan.quiet) as bar:
+                for ref in refs:
+                    row: dict[str, Any] = {"object": ref.id, "category": ref.category}
+                    try:
+                        data = cache.get(ref)
+                        ctx = store.context(data, size, seed)
+                    except (ObjectLoadError, ValueError) as exc:
+                        row.update(status="failed", error=str(exc), seconds=0.0)
+                    else:
+                        contexts.append(ctx)
+                        result, completion = evaluate_object(method, data, ctx, plan.metrics)
+                        row.update(result)
+                        if completion is not None and len(examples) < EXAMPLE_PLYS:
+                            examples.append((ref.id, completion.points))
+                    rows.append(row)
+                    bar.update()
+            table = pd.DataFrame(rows)
+            summary = summarize(table, plan.metrics)
+            tr.log_params(run_id, flatten("", cfg))
+            tr.log_metrics(run_id, summary, step=size)
+            tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
+            self._log_artifacts(run_id, table, contexts, examples)
+        except BaseException:
+            tr.end(run_id, "KILLED")
+            raise
+        tr.end(run_id)
+        return CellResult(split, size, seed, run_id, False, summary, exp_id)
+
+    def _tags(self, plan: RunPlan, split: str, size: int, seed: int, key: str, cfg: dict):
+        ds = plan.dataset
+        plugin = plan.method.registration.plugin
+        eval_points = cfg["metrics"]
+        tags = {
+            "shapebench.kind": CELL_KIND,
+            "shapebench.cell_key": key,
+            "shapebench.version": __version__,
+            "method": plan.method.name,
+            "method.display_name": plan.method.display_name,
+            "method.trains": str(plan.method.cls.trains),
+            "dataset": ds.name,
+            "dataset.version": ds.version,
+            "dataset.fingerprint": ds.fingerprint(),
+            "split": split,
+            "context_size": str(size),
+            "seed": str(seed),
+            "plugin.distribution": plugin.distribution,
+            "plugin.version": plugin.version,
+            "git_commit": git_commit(),
+        }
+        for name, card in eval_points.items():
+            tags[f"card.{name}"] = card
+        if plan.checkpoint.get("run_id"):
+            tags["training_run_id"] = plan.checkpoint["run_id"]
+        return tags
+
+    def _log_artifacts(self, run_id, table, contexts, examples) -> None:
+        import trimesh
+
+        with tempfile.TemporaryDirectory() as tmp:
+            tmpdir = Path(tmp)
+            table.to_csv(tmpdir / "per_object.csv", index=False)
+            if contexts:
+                np.savez_compressed(
+                    tmpdir / "contexts.npz",
+                    objects=np.array([c.ref.id for c in contexts]),
+                    points=np.stack([c.points for c in contexts]),
+                    normals=np.stack([c.normals for c in contexts]),
+                )
+            self.tracker.client.log_artifacts(run_id, str(tmpdir))
+            if examples:
+                ex_dir = tmpdir / "completions"
+                ex_dir.mkdir()
+                for obj, pts in examples:
+                    trimesh.PointCloud(pts).export(ex_dir / (obj.replace("/", "__") + ".ply"))
+                self.tracker.client.log_artifacts(run_id, str(ex_dir), "completions")

@@ -1,0 +1,129 @@
+"""``shapebench sweep``: a YAML file of methods x datasets x splits x context sizes x seeds.
+
+Each (method, dataset) pair is one ``shapebench run``; its cells are skipped when finished, so a
+sweep interrupted by Ctrl-C or ``kill -9`` completes the rest when started again. Trainable
+methods train in a process of their own (see :mod:`shapebench.training`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shapebench.config import Settings, read_yaml
+from shapebench.errors import ConfigError
+from shapebench.method import TrainerOptions
+from shapebench.orchestrate import EvalOutcome, EvalRequest, evaluate
+from shapebench.registry import get_registry
+from shapebench.tracking import Tracker
+
+
+@dataclass
+class Entry:
+    name: str
+    options: dict[str, Any] = field(default_factory=dict)
+    data_root: str | None = None
+
+
+@dataclass
+class SweepSpec:
+    name: str
+    methods: list[Entry] | str
+    datasets: list[Entry]
+    splits: list[str] | None
+    contexts: list[int]
+    seeds: list[int]
+    profile: str | None = None
+    metrics: list[str] | None = None
+
+
+def _entries(value: Any, key: str, path: Path) -> list[Entry]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not value:
+        raise ConfigError(f"{path}: '{key}' must be a non-empty list")
+    out = []
+    for item in value:
+        if isinstance(item, str):
+            out.append(Entry(item))
+        elif isinstance(item, dict) and "name" in item:
+            out.append(Entry(item["name"], dict(item.get("options") or {}), item.get("data_root")))
+        else:
+            raise ConfigError(f"{path}: each of '{key}' is a name or {{name: ..., options: ...}}")
+    return out
+
+
+def load_sweep(path: Path) -> SweepSpec:
+    data = read_yaml(path)
+    unknown = set(data) - {
+        "name",
+        "profile",
+        "methods",
+        "datasets",
+        "splits",
+        "contexts",
+        "seeds",
+        "metrics",
+    }
+    if unknown:
+        raise ConfigError(f"{path}: unknown keys {sorted(unknown)}")
+    for key in ("methods", "datasets"):
+        if key not in data:
+            raise ConfigError(f"{path}: '{key}' is required")
+    methods = (
+        data["methods"] if data["methods"] == "all" else _entries(data["methods"], "methods", path)
+    )
+    contexts = data.get("contexts", [50, 100, 300, 1000])
+    seeds = data.get("seeds", [0])
+    if not all(isinstance(c, int) for c in contexts) or not all(isinstance(s, int) for s in seeds):
+        raise ConfigError(f"{path}: 'contexts' and 'seeds' must be lists of integers")
+    return SweepSpec(
+        name=data.get("name", path.stem),
+        methods=methods,
+        datasets=_entries(data["datasets"], "datasets", path),
+        splits=data.get("splits"),
+        contexts=contexts,
+        seeds=seeds,
+        profile=data.get("profile"),
+        metrics=data.get("metrics"),
+    )
+
+
+def run_sweep(
+    spec: SweepSpec,
+    settings: Settings,
+    force: bool,
+    quiet: bool,
+    trainer_for_seed: Callable[[int], TrainerOptions],
+) -> Iterator[EvalOutcome]:
+    methods = spec.methods
+    if methods == "all":
+        methods = [Entry(n) for n in get_registry().names("method")]
+    registry = get_registry()  # unknown names fail before any work, not halfway through
+    for m in methods:
+        registry.get("method", m.name)
+    for ds in spec.datasets:
+        registry.get("dataset", ds.name)
+    tracker = Tracker(settings)  # so does an unreachable server
+    for ds in spec.datasets:
+        for m in methods:
+            yield evaluate(
+                EvalRequest(
+                    method=m.name,
+                    dataset=ds.name,
+                    splits=spec.splits,
+                    contexts=spec.contexts,
+                    seeds=spec.seeds,
+                    method_opts=m.options,
+                    dataset_opts=ds.options,
+                    data_root=ds.data_root,
+                    metrics=spec.metrics,
+                    force=force,
+                    quiet=quiet,
+                ),
+                settings,
+                trainer_for_seed,
+                tracker,
+            )

@@ -1,0 +1,147 @@
+"""Training trainable methods, one process per training.
+
+Lightning's DDP supports one ``Trainer.fit`` per process (its subprocess launcher re-runs the
+command line for every rank), so ``shapebench run`` and ``sweep`` never call ``fit`` themselves:
+when a method trains and no checkpoint exists for its (method config, dataset, seed), they start
+``python -m shapebench train ...`` as a child process and wait for it. The checkpoint directory
+holds ``done.json`` once training finished; an interrupted training leaves its last checkpoint
+there for the method to resume from.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from shapebench.config import Settings
+from shapebench.dataset import Dataset
+from shapebench.errors import ShapebenchError
+from shapebench.hashing import stable_hash
+from shapebench.method import TrainerOptions, TrainingContext
+from shapebench.resolve import ResolvedMethod
+from shapebench.tracking import TRAINING_KIND, Tracker, flatten
+
+RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
+
+
+def checkpoint_key(method: ResolvedMethod, dataset: Dataset, seed: int) -> str:
+    return stable_hash({"method": method.config(), "dataset": dataset.fingerprint(), "seed": seed})
+
+
+def checkpoint_dir(settings: Settings, method: ResolvedMethod, key: str) -> Path:
+    return settings.artifact_root.parent / "checkpoints" / method.name / key
+
+
+def _global_rank() -> int:
+    for var in ("RANK", "SLURM_PROCID", "LOCAL_RANK"):
+        if os.environ.get(var, "").isdigit():
+            return int(os.environ[var])
+    return 0
+
+
+def read_done(workdir: Path) -> dict[str, Any] | None:
+    done = workdir / "done.json"
+    return json.loads(done.read_text()) if done.exists() else None
+
+
+def train_here(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    trainer: TrainerOptions,
+    settings: Settings,
+) -> dict[str, Any]:
+    """Train in this process (the ``shapebench train`` command); return the checkpoint record."""
+    key = checkpoint_key(method, dataset, trainer.seed)
+    workdir = checkpoint_dir(settings, method, key)
+    workdir.mkdir(parents=True, exist_ok=True)
+    run_id = os.environ.get(RUN_ID_ENV)
+    tracker = None
+    if _global_rank() == 0 and not run_id:
+        tracker = Tracker(settings)
+        exp = tracker.experiment_id(f"{dataset.name}-train")
+        run_id = tracker.start_run(
+            exp,
+            f"train {method.name} on {dataset.name}",
+            {
+                "shapebench.kind": TRAINING_KIND,
+                "method": method.name,
+                "dataset": dataset.name,
+                "checkpoint_key": key,
+            },
+        )
+        tracker.log_params(
+            run_id, flatten("", {"method": method.config(), "trainer": asdict(trainer)})
+        )
+        os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
+    instance = method.instantiate()
+    try:
+        path = instance.fit(
+            TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id)
+        )
+    except BaseException:
+        if tracker is not None:
+            tracker.end(run_id, "FAILED")
+        raise
+    record = {"key": key, "path": str(path), "run_id": run_id}
+    if _global_rank() == 0:
+        (workdir / "done.json").write_text(json.dumps(record))
+        if tracker is not None:
+            tracker.end(run_id)
+    return record
+
+
+def ensure_checkpoint(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    trainer: TrainerOptions,
+    settings: Settings,
+    data_root: Path | None,
+    quiet: bool = False,
+) -> dict[str, Any]:
+    """Reuse the checkpoint of an identical training, or train in a child process."""
+    key = checkpoint_key(method, dataset, trainer.seed)
+    workdir = checkpoint_dir(settings, method, key)
+    record = read_done(workdir)
+    if record is not None:
+        return record
+    cmd = [
+        sys.executable,
+        "-m",
+        "shapebench",
+        "train",
+        "--method",
+        method.name,
+        "--dataset",
+        dataset.name,
+        "--profile",
+        settings.profile_name,
+        "--tracking-uri",
+        settings.tracking_uri,
+        "--cache-dir",
+        str(settings.cache_dir),
+        "--workspace",
+        str(settings.artifact_root.parent),
+    ]
+    cmd += [a for k, v in asdict(method.options).items() for a in ("-O", f"{k}={json.dumps(v)}")]
+    cmd += [a for k, v in asdict(dataset.options).items() for a in ("-D", f"{k}={json.dumps(v)}")]
+    for k, v in asdict(trainer).items():
+        if v is not None:
+            cmd += [f"--{k.replace('_', '-')}", str(v)]
+    if data_root:
+        cmd += ["--data-root", str(data_root)]
+    if quiet:
+        cmd.append("--quiet")
+    env = {k: v for k, v in os.environ.items() if k != RUN_ID_ENV}
+    proc = subprocess.run(cmd, env=env)
+    record = read_done(workdir)
+    if proc.returncode != 0 or record is None:
+        raise ShapebenchError(
+            f"training {method.name} on {dataset.name} failed (exit status {proc.returncode})",
+            f"run it alone to see the details: {' '.join(cmd[2:])}",
+        )
+    return record

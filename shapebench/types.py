@@ -1,0 +1,104 @@
+"""Plain data passed between datasets, methods and metrics.
+
+Arrays are numpy, float32, shaped ``(n, 3)`` for points and normals, in the dataset's normalised
+frame (centre of mass at the origin, largest vertex distance 1; see :mod:`shapebench.preprocess`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import numpy as np
+
+#: Evaluation and training splits, named as in the paper: ``trained`` is the test objects of the
+#: categories used for training (Table 1), ``novel`` the test objects of categories never seen in
+#: training (Table 2); ``train`` holds the training objects of the trained categories.
+TRAIN = "train"
+TRAINED = "trained"
+NOVEL = "novel"
+EVAL_SPLITS = (TRAINED, NOVEL)
+ALL_SPLITS = (TRAIN, TRAINED, NOVEL)
+
+
+class Supervision(str, Enum):
+    """What a method needs from a dataset at training time."""
+
+    SURFACE_POINTS = "surface_points"  # visible ("disemboweled") surface points with normals
+    SDF_SAMPLES = "sdf_samples"  # signed distances at points near the surface (DeepSDF)
+    OCCUPANCY_SAMPLES = "occupancy_samples"  # inside/outside labels in the bounding box (OccNet)
+    COMPLETE_POINTS = "complete_points"  # dense points over the whole surface (PCN targets)
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Category:
+    name: str
+    split: str  # TRAINED or NOVEL: whether methods may train on this category
+
+
+@dataclass(frozen=True)
+class ObjectRef:
+    """One object of a dataset; ``id`` is unique within the dataset."""
+
+    id: str
+    category: str
+
+
+@dataclass
+class ObjectData:
+    """The preprocessed arrays of one object.
+
+    ``surface_points``/``surface_normals`` are the points visible from the viewpoints around the
+    object (the pool contexts are drawn from); ``gt_points`` is the ground truth metrics compare
+    against. Datasets may add more arrays (SDF samples, occupancy, ...) under ``extra``.
+    """
+
+    ref: ObjectRef
+    surface_points: np.ndarray
+    surface_normals: np.ndarray
+    gt_points: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    #: Scratch space for metrics (the ground truth's KD-tree is built once per object).
+    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+
+@dataclass(frozen=True)
+class Context:
+    """The sparse observation a method completes.
+
+    ``seed`` is derived from (dataset, object, context size, run seed): a method that draws random
+    numbers should seed from it so that runs repeat exactly.
+    """
+
+    ref: ObjectRef
+    points: np.ndarray
+    normals: np.ndarray
+    seed: int
+
+    @property
+    def size(self) -> int:
+        return int(self.points.shape[0])
+
+
+@dataclass
+class Completion:
+    """What a method returns for one context.
+
+    ``points`` is always required: the completed shape as a point cloud (metrics use it). A method
+    may also return the ``mesh`` it extracted, its implicit function ``sdf`` (callable on an
+    ``(n, 3)`` array), and ``samples``: several completions drawn from a posterior, as point clouds.
+    ``info`` holds scalars worth logging (timings, iterations, ...).
+    """
+
+    points: np.ndarray
+    mesh: Any | None = None
+    sdf: Callable[[np.ndarray], np.ndarray] | None = None
+    samples: list[np.ndarray] | None = None
+    info: dict[str, float] = field(default_factory=dict)
+    #: Scratch space shared by metrics scoring this completion (nearest-neighbour distances).
+    cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
