@@ -445,6 +445,6 @@ def main() -> None:
     warnings.showwarning = _show_warning
     # MLflow's own progress bars and INFO lines would interleave with ours.
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
-    for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(logging.WARNING)
+    os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
+    logging.getLogger("alembic").setLevel(logging.WARNING)
     cli(prog_name="shapebench")

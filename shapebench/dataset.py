@@ -82,6 +82,10 @@ class Dataset(ABC):
     def prepare(self, refs: list[ObjectRef]) -> None:  # noqa: B027 - optional hook
         """Optionally precompute what :meth:`load` needs (called with a progress bar)."""
 
+    def max_context_size(self) -> int | None:
+        """An upper bound on any object's visible points, known without loading (or None)."""
+        return None
+
 
 @dataclass(frozen=True)
 class MeshOptions:
@@ -113,6 +117,9 @@ class MeshDataset(Dataset):
     @abstractmethod
     def mesh(self, ref: ObjectRef):  # -> trimesh.Trimesh
         """The raw mesh of one object, in its source frame."""
+
+    def max_context_size(self) -> int | None:
+        return self.options.surface_candidates
 
     def preprocess_params(self) -> PreprocessParams:
         o = self.options

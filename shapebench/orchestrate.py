@@ -71,6 +71,13 @@ def evaluate(
     dataset = resolve_dataset(registry, req.dataset, settings, req.data_root, req.dataset_opts)
     splits = _check_splits(dataset, req.splits)
     contexts = validate_contexts(req.contexts)
+    bound = dataset.max_context_size()
+    if bound is not None and max(contexts) > bound:
+        raise ShapebenchError(
+            f"context size {max(contexts)} is larger than the {bound} surface points that dataset "
+            f"{dataset.name!r} samples per object",
+            "use smaller context sizes, or sample more surface points (-D surface_candidates=...)",
+        )
     metrics = resolve_metrics(registry, req.metrics)
     primary = (
         dataset.default_metric

@@ -40,12 +40,13 @@ __all__ = [
 
 GENERATOR_VERSION = "1"
 
-SEGMENTS = 32  # circle resolution of prominent round parts (table tops, bottles, bowls)
-SMALL_SEGMENTS = 12  # legs, poles, knobs: small enough that facets are invisible
-SPHERE_SEGMENTS = 12  # geodesic spheres used for hulls and joints
+SEGMENTS = 48  # circle resolution of prominent round parts (table tops, bottles, bowls)
+SMALL_SEGMENTS = 16  # legs, poles, knobs: small enough that facets are invisible
+SPHERE_SEGMENTS = 16  # geodesic spheres used for hulls and joints
 
 Point = Sequence[float]
 Solid = Manifold
+SolidBuilder = Callable[[np.random.Generator], Solid]  # a family, authored z-up
 
 
 # --------------------------------------------------------------------------------------------
@@ -114,7 +115,7 @@ def _basis(direction: Point) -> np.ndarray:
 
 
 def place(part: Solid, origin: Point, direction: Point) -> Solid:
-    """Move a part authored along local +z from the origin to start at ``origin``, along ``direction``."""
+    """Move a part authored from the origin along +z to start at ``origin`` along ``direction``."""
     return part.transform(np.column_stack([_basis(direction), _vec(origin)]))
 
 
@@ -340,14 +341,14 @@ def _to_trimesh(solid: Solid) -> trimesh.Trimesh:
     return trimesh.Trimesh(vertices=y_up, faces=faces, process=True)
 
 
-def _build(fn: Callable[[np.random.Generator], Solid], rng: np.random.Generator) -> trimesh.Trimesh:
+def _build(fn: SolidBuilder, rng: np.random.Generator) -> trimesh.Trimesh:
     return _to_trimesh(fn(rng))
 
 
-def _family(name: str, split: str, description: str):
+def _family(name: str, split: str, description: str) -> Callable[[SolidBuilder], SolidBuilder]:
     """Register a z-up solid builder as a category (definition order = CATEGORIES order)."""
 
-    def register(fn: Callable[[np.random.Generator], Solid]):
+    def register(fn: SolidBuilder) -> SolidBuilder:
         CATEGORIES[name] = Family(name, split, description, partial(_build, fn))
         return fn
 
@@ -355,10 +356,11 @@ def _family(name: str, split: str, description: str):
 
 
 def generate(category: str, seed: int) -> trimesh.Trimesh:
-    """Deterministic mesh for (category, seed).
+    """Deterministic y-up mesh for (category, seed); same inputs give byte-identical arrays.
 
     The category name is mixed into the seed with CRC32 (stable across processes, unlike
-    ``hash()``) so categories sharing a seed do not share random streams.
+    ``hash()``) so categories sharing a seed do not share random streams. Raises
+    :class:`UnknownCategoryError` (a ValueError and a KeyError) naming the available categories.
     """
     family = CATEGORIES.get(category)
     if family is None:
@@ -466,7 +468,10 @@ def _chair(rng: np.random.Generator) -> Solid:
         x, y = w / 2 - aw / 2, -d / 2 + _u(rng, 0.04, 0.1)
         arm = [
             prism_between((x, y, seat_mid), (x, y, h + ah), aw / 2, aw / 2),
-            box_span((x - aw / 2, -d / 2 - 0.01, h + ah - 0.02), (x + aw / 2, d / 2 - 0.05, h + ah + 0.01)),
+            box_span(
+                (x - aw / 2, -d / 2 - 0.01, h + ah - 0.02),
+                (x + aw / 2, d / 2 - 0.05, h + ah + 0.01),
+            ),
         ]
         parts += mirror_x(arm)
     return union(parts)
@@ -479,7 +484,7 @@ def _table(rng: np.random.Generator) -> Solid:
     round_top = _chance(rng, 0.3)
     if round_top:
         r = _u(rng, 0.35, 0.6)
-        parts = [cylinder_between((0, 0, h - t), (0, 0, h), r, 48)]
+        parts = [cylinder_between((0, 0, h - t), (0, 0, h), r, SEGMENTS)]
         half_x = half_y = r / math.sqrt(2)
         style = _pick(rng, ["legs", "pedestal"])
     else:
@@ -496,7 +501,9 @@ def _table(rng: np.random.Generator) -> Solid:
         parts += leg_set(legs, xy, 0.0, top_mid)
         if _chance(rng, 0.5):  # apron: rails just under the top, between leg tops
             ah, at = _u(rng, 0.05, 0.12), _u(rng, 0.015, 0.03)
-            parts += [rail_between(xy[a], xy[b], at, top_mid - ah, top_mid) for a, b in ALL_EDGE_PAIRS]
+            parts += [
+                rail_between(xy[a], xy[b], at, top_mid - ah, top_mid) for a, b in ALL_EDGE_PAIRS
+            ]
         if _chance(rng, 0.25):  # lower shelf spanning the leg axes
             z = _u(rng, 0.1, 0.25)
             p = leg_point(legs, xy[3][0], xy[3][1], 0.0, top_mid, z)
@@ -509,11 +516,16 @@ def _table(rng: np.random.Generator) -> Solid:
         ft = _u(rng, 0.02, 0.05)
         cross = _chance(rng, 0.4)
         for x in xs:
-            parts.append(cylinder_between((x, 0, ft - 0.005), (x, 0, top_mid), rc * taper,
-                                          SEGMENTS, r_end=rc))
+            parts.append(
+                cylinder_between(
+                    (x, 0, ft - 0.005), (x, 0, top_mid), rc * taper, SEGMENTS, r_end=rc
+                )
+            )
             if cross:
-                parts += [box((2 * foot_r, 0.06, ft), (x, 0, ft / 2)),
-                          box((0.06, 2 * foot_r, ft), (x, 0, ft / 2))]
+                parts += [
+                    box((2 * foot_r, 0.06, ft), (x, 0, ft / 2)),
+                    box((0.06, 2 * foot_r, ft), (x, 0, ft / 2)),
+                ]
             else:
                 parts.append(cylinder_between((x, 0, 0), (x, 0, ft), foot_r, SEGMENTS))
     else:  # trestle: two end frames joined by a stretcher beam
@@ -523,8 +535,12 @@ def _table(rng: np.random.Generator) -> Solid:
         foot_h = _u(rng, 0.03, 0.07)
         zs = _u(rng, 0.15, 0.45)
         for sx in (-1.0, 1.0):
-            parts.append(box_span((sx * x - pt / 2, -depth / 2, foot_h - 0.005),
-                                  (sx * x + pt / 2, depth / 2, top_mid)))
+            parts.append(
+                box_span(
+                    (sx * x - pt / 2, -depth / 2, foot_h - 0.005),
+                    (sx * x + pt / 2, depth / 2, top_mid),
+                )
+            )
             parts.append(box((1.6 * pt, 1.7 * half_y, foot_h), (sx * x, 0, foot_h / 2)))
         parts.append(box((2 * x, 0.04, 0.05), (0, 0, zs)))
     return union(parts)
@@ -547,9 +563,14 @@ def _sofa(rng: np.random.Generator) -> Solid:
     arm_top = _u(rng, max(seat_h + 0.12, 0.55), 0.72)
     z0 = clearance + 0.005 if clearance else 0.0
 
+    # Hidden parts are pulled in by ``e`` wherever they would share a rounded edge with a
+    # visible part: identical curved surfaces triangulated differently leave near-coincident
+    # vertices in the union.
+    e = 0.005
+    side = w / 2 - (e if arms else 0.0)
     parts = [
-        rounded_box((-w / 2, -d / 2, z0), (w / 2, d / 2, base_top + 0.01), rr),
-        rounded_box((-w / 2, d / 2 - bt, z0), (w / 2, d / 2, back_top), rr),
+        rounded_box((-side, -d / 2, z0 + e), (side, d / 2 - e, base_top + 0.01), rr),
+        rounded_box((-side, d / 2 - bt, z0 + e), (side, d / 2, back_top), rr),
     ]
     if arms:
         parts += mirror_x([rounded_box((w / 2 - aw, -d / 2, z0), (w / 2, d / 2, arm_top), rr)])
@@ -561,12 +582,21 @@ def _sofa(rng: np.random.Generator) -> Solid:
     bct = _u(rng, 0.08, 0.16)
     for k in range(n):
         x0 = -inner + gap + k * (seat_w + gap)
-        parts.append(rounded_box((x0, -d / 2 + 0.02, base_top - 0.01),
-                                 (x0 + seat_w, d / 2 - bt + 0.02, seat_h), max(rr, 0.02)))
+        parts.append(
+            rounded_box(
+                (x0, -d / 2 + 0.02, base_top - 0.01),
+                (x0 + seat_w, d / 2 - bt + 0.02, seat_h),
+                max(rr, 0.02),
+            )
+        )
         if back_cushions:
-            parts.append(rounded_box((x0, d / 2 - bt - bct, seat_h - 0.02),
-                                     (x0 + seat_w, d / 2 - bt + 0.02, back_top - 0.04),
-                                     max(rr, 0.03)))
+            parts.append(
+                rounded_box(
+                    (x0, d / 2 - bt - bct, seat_h - 0.02),
+                    (x0 + seat_w, d / 2 - bt + 0.02, back_top - 0.04),
+                    max(rr, 0.03),
+                )
+            )
     if clearance:
         legs = draw_leg_style(rng, 0.015, 0.03, max_splay=0.02)
         inset = legs.radius + _u(rng, 0.02, 0.06)
@@ -594,19 +624,26 @@ def _bed(rng: np.random.Generator) -> Solid:
 
     parts = [
         box_span((-width / 2, -length / 2, leg_h), (width / 2, length / 2, frame_top)),
-        rounded_box((-width / 2 + inset, -length / 2 + inset, frame_top - 0.01),
-                    (width / 2 - inset, length / 2 - 0.01, mattress_top), _u(rng, 0.02, 0.08)),
+        rounded_box(
+            (-width / 2 + inset, -length / 2 + inset, frame_top - 0.01),
+            (width / 2 - inset, length / 2 - 0.01, mattress_top),
+            _u(rng, 0.02, 0.08),
+        ),
     ]
     head_bottom = 0.0 if _chance(rng, 0.5) else leg_h + 0.01
     parts.append(box_span((-hw, y_head - 0.01, head_bottom), (hw, y_head + head_t, head_top)))
     if _chance(rng, 0.4):  # rounded crest along the headboard
         y = y_head + head_t / 2 - 0.005
-        parts.append(cylinder_between((-hw, y, head_top), (hw, y, head_top), head_t / 2 + 0.01,
-                                      SMALL_SEGMENTS))
+        parts.append(
+            cylinder_between(
+                (-hw, y, head_top), (hw, y, head_top), head_t / 2 + 0.01, SMALL_SEGMENTS
+            )
+        )
     if _chance(rng, 0.4):
         foot_top = frame_top + _u(rng, 0.05, 0.4)
-        parts.append(box_span((-hw, -length / 2 - head_t, head_bottom),
-                              (hw, -length / 2 + 0.01, foot_top)))
+        parts.append(
+            box_span((-hw, -length / 2 - head_t, head_bottom), (hw, -length / 2 + 0.01, foot_top))
+        )
     if leg_h:
         legs = draw_leg_style(rng, 0.025, 0.05, max_splay=0.0)
         xy = rect_corners(width / 2 - legs.radius - 0.02, length / 2 - legs.radius - 0.02)
@@ -616,9 +653,23 @@ def _bed(rng: np.random.Generator) -> Solid:
     pd, ph = _u(rng, 0.3, 0.45), _u(rng, 0.08, 0.15)
     for k in range(n_pillows):
         x0 = -width / 2 + inset + 0.03 + k * (pw + 0.06)
-        parts.append(rounded_box((x0, y_head - 0.05 - pd, mattress_top - 0.03),
-                                 (x0 + pw, y_head - 0.05, mattress_top + ph), 0.04))
+        parts.append(
+            rounded_box(
+                (x0, y_head - 0.05 - pd, mattress_top - 0.03),
+                (x0 + pw, y_head - 0.05, mattress_top + ph),
+                0.04,
+            )
+        )
     return union(parts)
+
+
+def _pull(style: str, at: Point) -> Solid:
+    """Door/drawer handle sticking out toward -y from the panel face at ``at``."""
+    x, y, z = at
+    if style == "knob":
+        return cylinder_between((x, y + 0.003, z), (x, y - 0.025, z), 0.012)
+    hx, hz = (0.008, 0.06) if style == "vertical" else (0.06, 0.008)
+    return box_span((x - hx, y - 0.02, z - hz), (x + hx, y + 0.003, z + hz))
 
 
 @_family("cabinet", "trained", "box body with drawers and doors, handles, plinth or legs")
@@ -629,7 +680,9 @@ def _cabinet(rng: np.random.Generator) -> Solid:
     top = z0 + h
     parts = [box_span((-w / 2, -d / 2, z0), (w / 2, d / 2, top))]
     if base == "plinth":
-        parts.append(box_span((-w / 2 + 0.03, -d / 2 + 0.04, 0.0), (w / 2 - 0.03, d / 2 - 0.02, z0 + 0.01)))
+        parts.append(
+            box_span((-w / 2 + 0.03, -d / 2 + 0.04, 0.0), (w / 2 - 0.03, d / 2 - 0.02, z0 + 0.01))
+        )
     elif base == "legs":
         legs = draw_leg_style(rng, 0.015, 0.03, max_splay=0.03)
         inset = legs.radius + 0.01
@@ -637,8 +690,12 @@ def _cabinet(rng: np.random.Generator) -> Solid:
     pt = _u(rng, 0.01, 0.02)
     if _chance(rng, 0.5):  # overhanging top board
         oh = _u(rng, 0.01, 0.04)
-        parts.append(box_span((-w / 2 - oh, -d / 2 - pt - oh, top - 0.005),
-                              (w / 2 + oh, d / 2, top + _u(rng, 0.015, 0.04))))
+        parts.append(
+            box_span(
+                (-w / 2 - oh, -d / 2 - pt - oh, top - 0.005),
+                (w / 2 + oh, d / 2, top + _u(rng, 0.015, 0.04)),
+            )
+        )
 
     cols = 1 if w < 0.6 else _i(rng, 1, 3)
     n_drawers = _i(rng, 0, 4)
@@ -652,24 +709,23 @@ def _cabinet(rng: np.random.Generator) -> Solid:
     knobs = _chance(rng, 0.5)
     col_w = w / cols
     rows = [(z0, z0 + door_h, "door")] if door_h else []
-    rows += [(z0 + door_h + k * drawer_h, z0 + door_h + (k + 1) * drawer_h, "drawer")
-             for k in range(n_drawers)]
+    rows += [
+        (z0 + door_h + k * drawer_h, z0 + door_h + (k + 1) * drawer_h, "drawer")
+        for k in range(n_drawers)
+    ]
     for za, zb, kind in rows:
         for c in range(cols):
             xa, xb = -w / 2 + c * col_w, -w / 2 + (c + 1) * col_w
-            parts.append(box_span((xa + gap, front_y - pt, za + gap), (xb - gap, front_y + 0.003, zb - gap)))
+            parts.append(
+                box_span((xa + gap, front_y - pt, za + gap), (xb - gap, front_y + 0.003, zb - gap))
+            )
             if kind == "door":
                 hx = xb - 0.05 if (cols == 1 or c < cols / 2) else xa + 0.05
                 hz = za + 0.7 * (zb - za) if zb - za > 0.5 else (za + zb) / 2
             else:
                 hx, hz = (xa + xb) / 2, (za + zb) / 2
-            hy = front_y - pt
-            if knobs:
-                parts.append(cylinder_between((hx, hy + 0.003, hz), (hx, hy - 0.025, hz), 0.012))
-            elif kind == "door":
-                parts.append(box_span((hx - 0.008, hy - 0.02, hz - 0.06), (hx + 0.008, hy + 0.003, hz + 0.06)))
-            else:
-                parts.append(box_span((hx - 0.06, hy - 0.02, hz - 0.008), (hx + 0.06, hy + 0.003, hz + 0.008)))
+            style = "knob" if knobs else ("vertical" if kind == "door" else "horizontal")
+            parts.append(_pull(style, (hx, front_y - pt, hz)))
     return union(parts)
 
 
@@ -686,8 +742,13 @@ def _shade(rng: np.random.Generator, size: float) -> tuple[Solid, float]:
     slope = (r_open - r_cap) / height
     extra = 0.1 * height
     outer = cylinder_between((0, 0, 0), (0, 0, height), r_cap, SEGMENTS, r_end=r_open)
-    inner = cylinder_between((0, 0, cap), (0, 0, height + extra), r_cap + slope * cap - wall,
-                             SEGMENTS, r_end=r_open + slope * extra - wall)
+    inner = cylinder_between(
+        (0, 0, cap),
+        (0, 0, height + extra),
+        r_cap + slope * cap - wall,
+        SEGMENTS,
+        r_end=r_open + slope * extra - wall,
+    )
     parts = [difference(outer, [inner])]
     if _chance(rng, 0.7):  # bulb hanging from the cap on a socket
         socket = cylinder_between((0, 0, cap / 2), (0, 0, cap + 0.25 * height), 0.15 * r_cap)
@@ -704,10 +765,12 @@ def _lamp(rng: np.random.Generator) -> Solid:
     rb = height * _u(rng, 0.1, 0.22)
     rp = height * _u(rng, 0.008, 0.018)
     if _chance(rng, 0.7):
-        parts = [cylinder_between((0, 0, 0), (0, 0, bt), rb, SEGMENTS, r_end=rb * _u(rng, 0.6, 1.0))]
+        parts = [
+            cylinder_between((0, 0, 0), (0, 0, bt), rb, SEGMENTS, r_end=rb * _u(rng, 0.6, 1.0))
+        ]
     else:
         parts = [box((1.6 * rb, 1.6 * rb, bt), (0, 0, bt / 2))]
-    shade_size = height * (_u(rng, 0.08, 0.13) if style == "floor" else _u(rng, 0.12, 0.2))
+    shade_size = height * (_u(rng, 0.08, 0.13) if style == "floor" else _u(rng, 0.1, 0.17))
     shade, cap = _shade(rng, shade_size)
     if style == "arm":
         j1 = _vec((0, height * _u(rng, -0.2, 0.2), height * _u(rng, 0.4, 0.6)))
@@ -716,8 +779,12 @@ def _lamp(rng: np.random.Generator) -> Solid:
         j2 = j1 + l2 * np.array([0.0, -math.sin(a), math.cos(a)])
         tilt = math.radians(_u(rng, 0, 50))
         direction = (0.0, -math.sin(tilt), -math.cos(tilt))
-        parts += [cylinder_between((0, 0, bt / 2), j1, rp), cylinder_between(j1, j2, rp),
-                  sphere(j1, 1.6 * rp), sphere(j2, 1.6 * rp)]
+        parts += [
+            cylinder_between((0, 0, bt / 2), j1, rp),
+            cylinder_between(j1, j2, rp),
+            sphere(j1, 1.6 * rp),
+            sphere(j2, 1.6 * rp),
+        ]
         parts.append(place(shade, j2 - 0.5 * cap * np.array(direction), direction))
     else:
         parts.append(cylinder_between((0, 0, bt / 2), (0, 0, height), rp))
@@ -743,15 +810,23 @@ def _bottle(rng: np.random.Generator) -> Solid:
     shoulder_power = _u(rng, 0.5, 2.0)
     for k in range(1, 8):  # smooth shoulder from body radius down to the neck
         s = k / 8
-        rad = neck_r + (r - neck_r) * math.cos(math.pi / 2 * s ** shoulder_power)
+        rad = neck_r + (r - neck_r) * math.cos(math.pi / 2 * s**shoulder_power)
         prof.append((rad, body_h + shoulder_h * s))
-    prof += [(neck_r, body_h + shoulder_h), (neck_r, neck_top - lip), (neck_r * 1.18, neck_top - lip),
-             (neck_r * 1.18, neck_top), (0.0, neck_top)]
+    prof += [
+        (neck_r, body_h + shoulder_h),
+        (neck_r, neck_top - lip),
+        (neck_r * 1.18, neck_top - lip),
+        (neck_r * 1.18, neck_top),
+        (0.0, neck_top),
+    ]
     parts = [revolve(prof)]
     if _chance(rng, 0.5):
         cap_h = _u(rng, 0.015, 0.04)
-        parts.append(cylinder_between((0, 0, neck_top - lip - 0.004), (0, 0, neck_top + cap_h),
-                                      neck_r * 1.25, 24))
+        parts.append(
+            cylinder_between(
+                (0, 0, neck_top - lip - 0.004), (0, 0, neck_top + cap_h), neck_r * 1.25, 24
+            )
+        )
     return union(parts)
 
 
@@ -763,8 +838,13 @@ def _mug(rng: np.random.Generator) -> Solid:
     slope = (r_top - r) / h
     body = cylinder_between((0, 0, 0), (0, 0, h), r, SEGMENTS, r_end=r_top)
     extra = 0.01
-    cavity = cylinder_between((0, 0, bottom), (0, 0, h + extra), r + slope * bottom - wall,
-                              SEGMENTS, r_end=r_top + slope * extra - wall)
+    cavity = cylinder_between(
+        (0, 0, bottom),
+        (0, 0, h + extra),
+        r + slope * bottom - wall,
+        SEGMENTS,
+        r_end=r_top + slope * extra - wall,
+    )
 
     # Handle: an upright torus (optionally stretched vertically) cut to a "C" whose ends cross the
     # whole wall, so after the union it is attached at two places (genus 1).
@@ -787,8 +867,13 @@ def _mug(rng: np.random.Generator) -> Solid:
     return difference(union([body, handle]), [cavity])
 
 
-def _wing(root_le: Point, tip_le: Point, chord: tuple[float, float], thick: tuple[float, float],
-          vertical: bool = False) -> Solid:
+def _wing(
+    root_le: Point,
+    tip_le: Point,
+    chord: tuple[float, float],
+    thick: tuple[float, float],
+    vertical: bool = False,
+) -> Solid:
     """Tapered lifting surface with a diamond section (hull of root and tip sections).
 
     Chord runs toward -x from the leading edge; thickness is along z (or y for a fin).
@@ -807,12 +892,16 @@ def _airplane(rng: np.random.Generator) -> Solid:
     rf = length * _u(rng, 0.04, 0.08)
     rn, rt = rf * _u(rng, 0.5, 0.9), rf * _u(rng, 0.2, 0.4)
     tail_z = rf - rt
-    parts = [Manifold.batch_hull([
-        sphere((length / 2 - rn, 0, 0), rn, 20),
-        sphere((0.2 * length, 0, 0), rf, 20),
-        sphere((-0.15 * length, 0, 0), rf, 20),
-        sphere((-length / 2 + rt, 0, tail_z), rt, 20),
-    ])]
+    parts = [
+        Manifold.batch_hull(
+            [
+                sphere((length / 2 - rn, 0, 0), rn, 20),
+                sphere((0.2 * length, 0, 0), rf, 20),
+                sphere((-0.15 * length, 0, 0), rf, 20),
+                sphere((-length / 2 + rt, 0, tail_z), rt, 20),
+            ]
+        )
+    ]
 
     # Main wings.
     cr = length * _u(rng, 0.15, 0.3)
@@ -823,8 +912,9 @@ def _airplane(rng: np.random.Generator) -> Solid:
     zw = rf * _u(rng, -0.6, 0.5)
     tw = length * _u(rng, 0.015, 0.03)
     le_x = length * _u(rng, -0.1, 0.1) + cr / 2
-    wing = _wing((le_x, -0.2 * rf, zw), (le_x - sweep, span, zw + dihedral), (cr, ct),
-                 (tw, 0.4 * tw))
+    wing = _wing(
+        (le_x, -0.2 * rf, zw), (le_x - sweep, span, zw + dihedral), (cr, ct), (tw, 0.4 * tw)
+    )
     wings = [wing]
     if _chance(rng, 0.7):  # under-wing engine nacelles
         re = length * _u(rng, 0.02, 0.04)
@@ -833,9 +923,15 @@ def _airplane(rng: np.random.Generator) -> Solid:
         for f in fracs:
             x_le = le_x - sweep * f
             zc = zw + dihedral * f - 0.7 * re
-            wings.append(cylinder_between((x_le + 0.3 * le_len, span * f, zc),
-                                          (x_le - 0.7 * le_len, span * f, zc), re, 16,
-                                          r_end=0.8 * re))
+            wings.append(
+                cylinder_between(
+                    (x_le + 0.3 * le_len, span * f, zc),
+                    (x_le - 0.7 * le_len, span * f, zc),
+                    re,
+                    16,
+                    r_end=0.8 * re,
+                )
+            )
     parts += [w.mirror((0.0, 1.0, 0.0)) for w in wings] + wings
 
     # Tail: vertical fin on the upswept tail cone, tailplane low or on top of the fin (T-tail).
@@ -844,8 +940,15 @@ def _airplane(rng: np.random.Generator) -> Solid:
     fin_sweep = fin_h * _u(rng, 0.3, 1.2)
     fin_le = -length / 2 + rt + fin_c
     fin_tip = (fin_le - fin_sweep, 0.0, rf + fin_h)
-    parts.append(_wing((fin_le, 0, tail_z), fin_tip, (fin_c, 0.5 * fin_c),
-                       (0.02 * length, 0.01 * length), vertical=True))
+    parts.append(
+        _wing(
+            (fin_le, 0, tail_z),
+            fin_tip,
+            (fin_c, 0.5 * fin_c),
+            (0.02 * length, 0.01 * length),
+            vertical=True,
+        )
+    )
     sc = length * _u(rng, 0.06, 0.12)
     ss = length * _u(rng, 0.12, 0.22)
     if _chance(rng, 0.25):
@@ -869,22 +972,32 @@ def _car(rng: np.random.Generator) -> Solid:
     body_top = max(zc + length * _u(rng, 0.12, 0.2), 2.3 * rw)
     front_bevel, rear_bevel = length * _u(rng, 0.03, 0.12), length * _u(rng, 0.0, 0.08)
     hw = width / 2
-    body = hull([(x, y, zc) for x in (-length / 2, length / 2) for y in (-hw, hw)]
-                + [(x, y, body_top) for x in (-length / 2 + rear_bevel, length / 2 - front_bevel)
-                   for y in (-hw, hw)])
+    body = hull(
+        [(x, y, zc) for x in (-length / 2, length / 2) for y in (-hw, hw)]
+        + [
+            (x, y, body_top)
+            for x in (-length / 2 + rear_bevel, length / 2 - front_bevel)
+            for y in (-hw, hw)
+        ]
+    )
     overhang = length * _u(rng, 0.15, 0.22)
     axles = (length / 2 - overhang, -length / 2 + overhang * _u(rng, 0.9, 1.1))
     arches = [
         cylinder_between((x, sy * (hw - 0.4 * ww), rw), (x, sy * (hw + 0.05), rw), 1.12 * rw, 24)
-        for x in axles for sy in (-1.0, 1.0)
+        for x in axles
+        for sy in (-1.0, 1.0)
     ]
     parts = [difference(body, arches)]
+    hub_caps = _chance(rng, 0.5)
     for x in axles:
         for sy in (-1.0, 1.0):
-            parts.append(cylinder_between((x, sy * (hw - 0.9 * ww), rw),
-                                          (x, sy * (hw + 0.01), rw), rw, 24))
-            if _chance(rng, 0.5):  # hub cap
-                parts.append(cylinder_between((x, sy * hw, rw), (x, sy * (hw + 0.02), rw), 0.5 * rw, 16))
+            parts.append(
+                cylinder_between((x, sy * (hw - 0.9 * ww), rw), (x, sy * (hw + 0.01), rw), rw, 24)
+            )
+            if hub_caps:
+                parts.append(
+                    cylinder_between((x, sy * hw, rw), (x, sy * (hw + 0.02), rw), 0.5 * rw, 16)
+                )
 
     # Cabin: trapezoid hull; its position/length gives sedan, hatchback, van-like silhouettes.
     cab_len = length * _u(rng, 0.4, 0.7)
@@ -895,13 +1008,22 @@ def _car(rng: np.random.Generator) -> Solid:
     wind = cab_len * _u(rng, 0.15, 0.35)
     rear = cab_len * _u(rng, 0.05, 0.35)
     base_hw, top_hw = hw * 0.92, hw * _u(rng, 0.7, 0.85)
-    parts.append(hull([(x, y, body_top - 0.01) for x in (cab_back, cab_front) for y in (-base_hw, base_hw)]
-                      + [(x, y, body_top + cab_h) for x in (cab_back + rear, cab_front - wind)
-                         for y in (-top_hw, top_hw)]))
+    parts.append(
+        hull(
+            [(x, y, body_top - 0.01) for x in (cab_back, cab_front) for y in (-base_hw, base_hw)]
+            + [
+                (x, y, body_top + cab_h)
+                for x in (cab_back + rear, cab_front - wind)
+                for y in (-top_hw, top_hw)
+            ]
+        )
+    )
     if _chance(rng, 0.2):  # spoiler on two posts
         x = -length / 2 + rear_bevel + 0.03
         z = body_top + 0.03
-        parts += [box((0.02, 0.02, 0.04), (x, sy * hw * 0.6, body_top + 0.01)) for sy in (-1.0, 1.0)]
+        parts += [
+            box((0.02, 0.02, 0.04), (x, sy * hw * 0.6, body_top + 0.01)) for sy in (-1.0, 1.0)
+        ]
         parts.append(box((0.06, 2 * hw * 0.9, 0.01), (x, 0, z)))
     return union(parts)
 
@@ -914,14 +1036,20 @@ def _monitor(rng: np.random.Generator) -> Solid:
     bt = _u(rng, 0.01, 0.02)
     zc = bt + _u(rng, 0.04, 0.15) + hs / 2
     bezel = _u(rng, 0.005, 0.02)
-    screen = difference(box((w, ts, hs), (0, 0, zc)),
-                        [box((w - 2 * bezel, 0.004, hs - 2 * bezel), (0, -ts / 2, zc))])
+    screen = difference(
+        box((w, ts, hs), (0, 0, zc)),
+        [box((w - 2 * bezel, 0.004, hs - 2 * bezel), (0, -ts / 2, zc))],
+    )
     parts = [screen]
     nx, ny = _u(rng, 0.015, 0.04), _u(rng, 0.008, 0.015)
     if _chance(rng, 0.7):
         hd = _u(rng, 0.02, 0.06)
-        parts.append(box((w * _u(rng, 0.4, 0.8), hd + 0.005, hs * _u(rng, 0.4, 0.8)),
-                         (0, ts / 2 + hd / 2 - 0.0025, zc)))
+        parts.append(
+            box(
+                (w * _u(rng, 0.4, 0.8), hd + 0.005, hs * _u(rng, 0.4, 0.8)),
+                (0, ts / 2 + hd / 2 - 0.0025, zc),
+            )
+        )
         neck_top_y = ts / 2 + hd / 2
     else:
         neck_top_y = ts / 2 + 0.5 * ny
@@ -930,10 +1058,13 @@ def _monitor(rng: np.random.Generator) -> Solid:
     parts.append(prism_between(neck_bottom, (0.0, neck_top_y, zc), nx, ny))
     if _chance(rng, 0.5):
         rb = _u(rng, 0.08, 0.14)
-        parts.append(cylinder_between((0, neck_bottom[1], 0), (0, neck_bottom[1], bt), rb, SEGMENTS))
+        parts.append(
+            cylinder_between((0, neck_bottom[1], 0), (0, neck_bottom[1], bt), rb, SEGMENTS)
+        )
     else:
-        parts.append(box((w * _u(rng, 0.3, 0.5), _u(rng, 0.12, 0.22), bt),
-                         (0, neck_bottom[1], bt / 2)))
+        parts.append(
+            box((w * _u(rng, 0.3, 0.5), _u(rng, 0.12, 0.22), bt), (0, neck_bottom[1], bt / 2))
+        )
     return union(parts)
 
 
@@ -961,8 +1092,12 @@ def _bench(rng: np.random.Generator) -> Solid:
     else:
         parts.append(box_span((-length / 2, -d / 2, h - st), (length / 2, d / 2, h)))
     for sx in (-1.0, 1.0):
-        parts.append(box_span((sx * beam_x - 0.025, -d / 2 + 0.01, beam_top - beam_h),
-                              (sx * beam_x + 0.025, d / 2 - 0.01, beam_top)))
+        parts.append(
+            box_span(
+                (sx * beam_x - 0.025, -d / 2 + 0.01, beam_top - beam_h),
+                (sx * beam_x + 0.025, d / 2 - 0.01, beam_top),
+            )
+        )
     support_top = beam_top - beam_h / 2
     style = _pick(rng, ["legs", "panels", "a-frame"])
     if style == "legs":
@@ -974,8 +1109,12 @@ def _bench(rng: np.random.Generator) -> Solid:
     elif style == "panels":
         pt = _u(rng, 0.025, 0.05)
         for sx in (-1.0, 1.0):
-            parts.append(box_span((sx * beam_x - pt / 2, -d / 2 + 0.01, 0.0),
-                                  (sx * beam_x + pt / 2, d / 2 - 0.01, support_top)))
+            parts.append(
+                box_span(
+                    (sx * beam_x - pt / 2, -d / 2 + 0.01, 0.0),
+                    (sx * beam_x + pt / 2, d / 2 - 0.01, support_top),
+                )
+            )
     else:  # two splayed legs per end meeting under the beam
         r = _u(rng, 0.015, 0.03)
         spread = d / 2 * _u(rng, 0.8, 1.3)
@@ -983,8 +1122,14 @@ def _bench(rng: np.random.Generator) -> Solid:
         bar_y = spread + (0.2 * d - spread) * bar_z / support_top  # leg axis at the bar height
         for sx in (-1.0, 1.0):
             for sy in (-1.0, 1.0):
-                parts.append(prism_between((sx * beam_x, sy * spread, 0.0),
-                                           (sx * beam_x, sy * 0.2 * d, support_top), r, r))
+                parts.append(
+                    prism_between(
+                        (sx * beam_x, sy * spread, 0.0),
+                        (sx * beam_x, sy * 0.2 * d, support_top),
+                        r,
+                        r,
+                    )
+                )
             parts.append(box((0.03, 2 * bar_y, 0.03), (sx * beam_x, 0, bar_z)))
     if _chance(rng, 0.5):  # park-bench back: posts rising from the beams, horizontal slats
         back_h = _u(rng, 0.25, 0.45)
@@ -993,8 +1138,9 @@ def _bench(rng: np.random.Generator) -> Solid:
         top = h + back_h
         lean = back_h * tilt
         for sx in (-1.0, 1.0):
-            parts.append(prism_between((sx * beam_x, y0, z0), (sx * beam_x, y0 + lean, top),
-                                       0.02, 0.02))
+            parts.append(
+                prism_between((sx * beam_x, y0, z0), (sx * beam_x, y0 + lean, top), 0.02, 0.02)
+            )
         half = beam_x + _u(rng, 0.02, 0.1)
         for k in range(_i(rng, 1, 3)):
             z = h + back_h * (0.3 + 0.6 * (k + 1) / 3) - 0.02
@@ -1006,15 +1152,20 @@ def _bench(rng: np.random.Generator) -> Solid:
 @_family("bowl", "novel", "hollow revolved bowl with rounded sides and optional foot ring")
 def _bowl(rng: np.random.Generator) -> Solid:
     r = _u(rng, 0.08, 0.15)
-    h = r * _u(rng, 0.35, 0.6)
+    h = r * _u(rng, 0.3, 0.75)
     wall = _u(rng, 0.004, 0.01)
-    rb = r * _u(rng, 0.3, 0.6)
+    rb = r * _u(rng, 0.25, 0.65)
     power = _u(rng, 0.7, 1.5)  # bulge of the side curve
     n = 12
 
     def side(base_r: float, rim_r: float, z0: float, z1: float) -> list[tuple[float, float]]:
-        return [(base_r + (rim_r - base_r) * math.sin(math.pi / 2 * k / n) ** (1 / power),
-                 z0 + (z1 - z0) * (1 - math.cos(math.pi / 2 * k / n))) for k in range(n + 1)]
+        return [
+            (
+                base_r + (rim_r - base_r) * math.sin(math.pi / 2 * k / n) ** (1 / power),
+                z0 + (z1 - z0) * (1 - math.cos(math.pi / 2 * k / n)),
+            )
+            for k in range(n + 1)
+        ]
 
     outer = revolve([(0.0, 0.0), *side(rb, r, 0.0, h), (0.0, h)])
     inner_pts = side(rb - wall, r - wall, wall * _u(rng, 1.0, 2.0), h)
@@ -1023,8 +1174,9 @@ def _bowl(rng: np.random.Generator) -> Solid:
     if _chance(rng, 0.5):  # foot ring under the base
         fh = _u(rng, 0.005, 0.015)
         ring_r = rb * _u(rng, 0.7, 0.95)
-        ring = revolve([(ring_r - wall, 0.0), (ring_r, 0.0), (ring_r, fh + 0.002),
-                        (ring_r - wall, fh + 0.002)])
+        ring = revolve(
+            [(ring_r - wall, 0.0), (ring_r, 0.0), (ring_r, fh + 0.002), (ring_r - wall, fh + 0.002)]
+        )
         solid = union([solid.translate((0.0, 0.0, fh)), ring])
     return solid
 
@@ -1038,21 +1190,24 @@ def _shelf(rng: np.random.Generator) -> Solid:
     levels = [kick + bt / 2] + [kick + (h - kick) * (k + 1) / (n_inner + 1) for k in range(n_inner)]
     levels.append(h - bt / 2)
     if _chance(rng, 0.7):
-        parts = [box_span((sx * w / 2 - bt / 2, -d / 2, 0.0), (sx * w / 2 + bt / 2, d / 2, h))
-                 for sx in (-1.0, 1.0)]
+        parts = [
+            box_span((sx * w / 2 - bt / 2, -d / 2, 0.0), (sx * w / 2 + bt / 2, d / 2, h))
+            for sx in (-1.0, 1.0)
+        ]
         board_w = w
     else:  # open frame on four posts; boards end on the post axes
         p = _u(rng, 0.012, 0.025)
-        parts = [box_span((x - p, y - p, 0.0), (x + p, y + p, h))
-                 for x, y in rect_corners(w / 2 - p, d / 2 - p)]
+        parts = [
+            box_span((x - p, y - p, 0.0), (x + p, y + p, h))
+            for x, y in rect_corners(w / 2 - p, d / 2 - p)
+        ]
         board_w = w - 2 * p
     parts += [box((board_w, d, bt), (0, 0, z)) for z in levels]
     if _chance(rng, 0.6):
         parts.append(box_span((-w / 2, d / 2 - 0.008, 0.0), (w / 2, d / 2, h)))
     if _chance(rng, 0.3):  # vertical divider through the lower compartments
         x = w * _u(rng, -0.2, 0.2)
-        parts.append(box((bt, d, levels[-1] - levels[0]),
-                         (x, 0, (levels[0] + levels[-1]) / 2)))
+        parts.append(box((bt, d, levels[-1] - levels[0]), (x, 0, (levels[0] + levels[-1]) / 2)))
     if _chance(rng, 0.6):  # books standing on some boards, with small gaps between them
         for z0, z1 in zip(levels[:-1], levels[1:], strict=True):
             if not _chance(rng, 0.6):
@@ -1064,8 +1219,12 @@ def _shelf(rng: np.random.Generator) -> Solid:
                 bw = _u(rng, 0.015, 0.045)
                 bh = clear * _u(rng, 0.55, 0.9)
                 bd = d * _u(rng, 0.6, 0.9)
-                parts.append(box_span((x, -d / 2 + 0.01, z0 + bt / 2 - 0.003),
-                                      (x + bw, -d / 2 + 0.01 + bd, z0 + bt / 2 + bh)))
+                parts.append(
+                    box_span(
+                        (x, -d / 2 + 0.01, z0 + bt / 2 - 0.003),
+                        (x + bw, -d / 2 + 0.01 + bd, z0 + bt / 2 + bh),
+                    )
+                )
                 x += bw + 0.002
     return union(parts)
 
@@ -1080,7 +1239,9 @@ def _faucet(rng: np.random.Generator) -> Solid:
     if _chance(rng, 0.5):
         parts.append(cylinder_between((0, 0, 0), (0, 0, plate_t), rc * _u(rng, 1.6, 2.5), SEGMENTS))
     else:
-        parts.append(box((rc * _u(rng, 3.0, 8.0), rc * _u(rng, 2.5, 3.5), plate_t), (0, 0, plate_t / 2)))
+        parts.append(
+            box((rc * _u(rng, 3.0, 8.0), rc * _u(rng, 2.5, 3.5), plate_t), (0, 0, plate_t / 2))
+        )
 
     if _chance(rng, 0.5):  # gooseneck: a bent pipe from the column top arching forward (-y)
         ra = _u(rng, 0.05, 0.12)
@@ -1088,32 +1249,48 @@ def _faucet(rng: np.random.Generator) -> Solid:
         # The revolved arc starts at (ra, 0, 0) heading +y; the cyclic axis permutation
         # (x, y, z) -> (z, x - ra, y + hc) (a proper rotation, so winding is kept) moves that
         # start onto the column top heading up, and bends the pipe toward -y.
-        arc = torus(ra, rp, 40, sweep).transform(np.array(
-            [[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, -ra], [0.0, 1.0, 0.0, hc]]))
+        arc = torus(ra, rp, 40, sweep).transform(
+            np.array([[0.0, 0.0, 1.0, 0.0], [1.0, 0.0, 0.0, -ra], [0.0, 1.0, 0.0, hc]])
+        )
         a = math.radians(sweep)
         end = np.array([0.0, ra * math.cos(a) - ra, ra * math.sin(a) + hc])
         tangent = np.array([0.0, -math.sin(a), math.cos(a)])
         parts += [arc, cylinder_between(end - 0.3 * rp * tangent, end + 0.02 * tangent, 1.15 * rp)]
         # Lever on the side of the column.
         z = hc * _u(rng, 0.4, 0.8)
-        parts.append(capsule((0, 0, z), (rc + _u(rng, 0.03, 0.06), 0, z + _u(rng, 0.0, 0.04)),
-                             _u(rng, 0.005, 0.01)))
+        parts.append(
+            capsule(
+                (0, 0, z),
+                (rc + _u(rng, 0.03, 0.06), 0, z + _u(rng, 0.0, 0.04)),
+                _u(rng, 0.005, 0.01),
+            )
+        )
     else:  # straight spout from the column, nozzle pointing down
         zs = hc * _u(rng, 0.6, 0.9)
         reach = _u(rng, 0.08, 0.2)
         drop = _u(rng, 0.0, 0.04)
         tip = (0.0, -reach, zs - drop)
-        parts += [cylinder_between((0, 0, zs), tip, rp), sphere(tip, rp),
-                  cylinder_between(tip, (tip[0], tip[1], tip[2] - _u(rng, 0.01, 0.03)), rp)]
+        # The elbow sphere is a bit fatter than the pipes: equal radii would put the pipe rims
+        # exactly on the sphere and leave near-coincident vertices in the union.
+        parts += [
+            cylinder_between((0, 0, zs), tip, rp),
+            sphere(tip, 1.08 * rp),
+            cylinder_between(tip, (tip[0], tip[1], tip[2] - _u(rng, 0.01, 0.03)), rp),
+        ]
         if _chance(rng, 0.5):  # single lever on top
-            parts.append(capsule((0, 0, hc + rp), (0, _u(rng, 0.03, 0.08), hc + rp + 0.03),
-                                 _u(rng, 0.005, 0.01)))
+            parts.append(
+                capsule(
+                    (0, 0, hc + rp), (0, _u(rng, 0.03, 0.08), hc + rp + 0.03), _u(rng, 0.005, 0.01)
+                )
+            )
         else:  # two cross knobs on short side columns joined to the main one
             s = rc + _u(rng, 0.03, 0.06)
             kz = _u(rng, 0.03, 0.06)
             for sx in (-1.0, 1.0):
-                parts += [cylinder_between((sx * s, 0, 0), (sx * s, 0, plate_t + kz), 0.6 * rc),
-                          box((0.05, 0.008, 0.008), (sx * s, 0, plate_t + kz)),
-                          box((0.008, 0.05, 0.008), (sx * s, 0, plate_t + kz)),
-                          cylinder_between((0, 0, plate_t + 0.01), (sx * s, 0, plate_t + 0.01), 0.5 * rc)]
+                parts += [
+                    cylinder_between((sx * s, 0, 0), (sx * s, 0, plate_t + kz), 0.6 * rc),
+                    box((0.05, 0.008, 0.008), (sx * s, 0, plate_t + kz)),
+                    box((0.008, 0.05, 0.008), (sx * s, 0, plate_t + kz)),
+                    cylinder_between((0, 0, plate_t + 0.01), (sx * s, 0, plate_t + 0.01), 0.5 * rc),
+                ]
     return union(parts)

@@ -27,7 +27,7 @@ class PreprocessParams:
     surface_candidates: int = 20_000
     gt_points: int = 30_000
     viewpoints: int = 100
-    min_visible: int = 1000
+    min_visible: int = 1
 
 
 def _check_mesh(mesh: trimesh.Trimesh) -> None:

@@ -1,0 +1,131 @@
+"""Shared fixtures: a tiny synthetic benchmark, real pip-installed test plugins, CLI runner.
+
+The CLI tests run ``python -m shapebench`` in subprocesses, exactly as a user would, with the
+third-party test plugins under ``tests/plugins/`` installed by pip into temporary folders that are
+put on PYTHONPATH (a real install with real entry-point metadata, without touching the venv).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PLUGINS = ROOT / "tests" / "plugins"
+
+#: Dataset options that make the synthetic benchmark tiny: one test object per category.
+TINY = [
+    "-D", "test_per_category=1", "-D", "train_per_category=1",
+    "-D", "surface_candidates=3000", "-D", "gt_points=2000",
+]  # fmt: skip
+TINY_CONTEXTS = ["--contexts", "50,100"]
+
+
+def pip_install_to(target: Path, project: Path) -> Path:
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+         "--disable-pip-version-check", "--target", str(target), str(project)],
+        check=True, capture_output=True, text=True,
+    )  # fmt: skip
+    return target
+
+
+@pytest.fixture(scope="session")
+def example_site(tmp_path_factory) -> Path:
+    return pip_install_to(tmp_path_factory.mktemp("site-example"), PLUGINS / "shapebench-example")
+
+
+@pytest.fixture(scope="session")
+def broken_site(tmp_path_factory) -> Path:
+    return pip_install_to(tmp_path_factory.mktemp("site-broken"), PLUGINS / "shapebench-broken")
+
+
+@pytest.fixture(scope="session")
+def dupe_site(tmp_path_factory) -> Path:
+    return pip_install_to(tmp_path_factory.mktemp("site-dupe"), PLUGINS / "shapebench-dupe")
+
+
+@pytest.fixture(scope="session")
+def data_cache(tmp_path_factory) -> Path:
+    """One preprocessed-data cache for the whole session: the tiny benchmark is built once."""
+    return tmp_path_factory.mktemp("cache")
+
+
+@dataclass
+class Result:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@dataclass
+class Shapebench:
+    """Runs the CLI in a fresh process with an isolated workspace."""
+
+    workspace: Path
+    cache: Path
+    sites: tuple[Path, ...] = ()
+
+    @property
+    def tracking_uri(self) -> str:
+        return f"sqlite:///{self.workspace / 'mlflow.db'}"
+
+    def env(self) -> dict[str, str]:
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "SHAPEBENCH_"))}
+        env["SHAPEBENCH_WORKSPACE"] = str(self.workspace)
+        env["SHAPEBENCH_CACHE_DIR"] = str(self.cache)
+        env["PYTHONPATH"] = os.pathsep.join(str(s) for s in self.sites)
+        return env
+
+    def popen(self, *args: str, **kw) -> subprocess.Popen:
+        return subprocess.Popen(
+            [sys.executable, "-m", "shapebench", *args], env=self.env(), cwd=self.workspace,
+            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw,
+        )  # fmt: skip
+
+    def __call__(self, *args: str, timeout: float = 300) -> Result:
+        proc = subprocess.run(
+            [sys.executable, "-m", "shapebench", *args], env=self.env(), cwd=self.workspace,
+            capture_output=True, text=True, timeout=timeout,
+        )  # fmt: skip
+        return Result(proc.returncode, proc.stdout, proc.stderr)
+
+    def client(self):
+        from mlflow.tracking import MlflowClient
+
+        return MlflowClient(self.tracking_uri)
+
+    def cell_runs(self, experiment: str, status: str | None = "FINISHED"):
+        client = self.client()
+        exp = client.get_experiment_by_name(experiment)
+        if exp is None:
+            return []
+        flt = "tags.`shapebench.kind` = 'cell'"
+        if status:
+            flt += f" and attributes.status = '{status}'"
+        return client.search_runs([exp.experiment_id], filter_string=flt, max_results=1000)
+
+
+@pytest.fixture
+def shapebench(tmp_path, data_cache) -> Shapebench:
+    ws = tmp_path / "ws"
+    ws.mkdir()
+    return Shapebench(ws, data_cache)
+
+
+@pytest.fixture
+def with_example(shapebench, example_site) -> Shapebench:
+    shapebench.sites = (example_site,)
+    return shapebench
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

@@ -1,0 +1,1 @@
+"""Example third-party methods for shapebench (see docs/plugins.md)."""

@@ -1,0 +1,69 @@
+"""Bad input: one clear message (exit status 2), no traceback, nothing lost."""
+
+from __future__ import annotations
+
+import time
+
+from conftest import TINY, free_port
+
+
+def _clean_error(res, *needles: str) -> None:
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert "Traceback" not in res.stderr
+    assert res.stderr.startswith("Error: ")
+    for n in needles:
+        assert n in res.stderr, res.stderr
+
+
+def test_unknown_method_lists_available(shapebench):
+    res = shapebench("run", "--method", "nope", "--dataset", "synthetic")
+    _clean_error(res, "unknown method 'nope'", "available: gauss")
+
+
+def test_unknown_dataset_lists_available(shapebench):
+    res = shapebench("run", "--method", "gauss", "--dataset", "shapenet-typo")
+    _clean_error(res, "unknown dataset 'shapenet-typo'", "synthetic")
+
+
+def test_unknown_option_names_valid_ones(shapebench):
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", "-O", "sigmaa=0.1")
+    _clean_error(res, "sigmaa", "valid options: sigma")
+
+
+def test_missing_data_root_names_the_path(shapebench, tmp_path):
+    missing = tmp_path / "no-such-folder"
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", "--data-root", str(missing))
+    _clean_error(res, str(missing), "does not exist")
+
+
+def test_context_larger_than_sampled_points_fails_before_any_work(shapebench, tmp_path):
+    shapebench.cache = tmp_path / "untouched-cache"
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50,5000")
+    _clean_error(res, "context size 5000", "3000 surface points")
+    assert not shapebench.cache.exists()
+
+
+def test_context_larger_than_visible_points_fails_before_any_run(shapebench):
+    # 2999 of 3000 sampled points is more than any synthetic object shows to the viewpoints.
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50,2999")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "Error: context size 2999 is larger than the" in res.stderr
+    assert "visible surface points of object" in res.stderr
+    assert shapebench.cell_runs("synthetic-trained", status=None) == []
+
+
+def test_unreachable_tracking_server_fails_fast_before_any_work(shapebench, tmp_path):
+    uri = f"http://127.0.0.1:{free_port()}"
+    shapebench.cache = tmp_path / "untouched-cache"
+    start = time.monotonic()
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", "--tracking-uri", uri)
+    _clean_error(res, f"cannot reach the MLflow tracking server at {uri}")
+    assert time.monotonic() - start < 30
+    assert not shapebench.cache.exists()  # no dataset was generated
+
+
+def test_bad_sweep_file_is_named(shapebench, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("methods: [gauss]\ndatasets: [synthetic]\ncontexts: [fifty]\n")
+    _clean_error(shapebench("sweep", str(bad)), str(bad), "contexts")
+    _clean_error(shapebench("sweep", str(tmp_path / "missing.yaml")), "not found")

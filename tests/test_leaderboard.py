@@ -1,0 +1,102 @@
+"""Leaderboards are computed from the runs in MLflow, per object, like the paper's tables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import TINY, TINY_CONTEXTS
+
+from shapebench.config import make_settings
+from shapebench.errors import ShapebenchError
+from shapebench.leaderboard import Board, build_board, render_markdown
+from shapebench.paper import paper_table
+from shapebench.tracking import Tracker
+
+
+def _per_object(sb, method: str, k: int) -> pd.DataFrame:
+    run = next(r for r in sb.cell_runs("synthetic-novel")
+               if r.data.tags["method"] == method and r.data.tags["context_size"] == str(k))  # fmt: skip
+    dst = sb.workspace / f"dl-{method}-{k}"
+    dst.mkdir(exist_ok=True)
+    return pd.read_csv(sb.client().download_artifacts(run.info.run_id, "per_object.csv", str(dst)))
+
+
+def test_leaderboard_raw_and_normalised_from_mlflow(with_example):
+    sb = with_example
+    for method in ("gauss", "example-sphere"):
+        assert sb("run", "-m", method, "-d", "synthetic", *TINY, *TINY_CONTEXTS, "-q",
+                  "--split", "novel").returncode == 0  # fmt: skip
+    res = sb("leaderboard", "--dataset", "synthetic", "--split", "novel", "--reference", "gauss")
+    assert res.returncode == 0, res.stderr
+    md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
+    csv = pd.read_csv(sb.workspace / "leaderboards" / "synthetic-novel.csv")
+    assert "squared Euclidean NN distances" in md and "2000 eval points" in md
+    assert "| Gauss densification (`gauss`) |" in md
+    assert "| Sphere fit (example) (`example-sphere`) |" in md
+
+    # Recompute equation 8 by hand from the per-object artifacts.
+    for k in (50, 100):
+        g = _per_object(sb, "gauss", k).set_index("object")["chamfer-l2"]
+        s = _per_object(sb, "example-sphere", k).set_index("object")["chamfer-l2"]
+        raw = csv[(csv.kind == "raw") & (csv.method == "example-sphere") & (csv.context == k)]
+        assert np.isclose(raw["mean"].item(), 1000 * s.mean())
+        assert np.isclose(raw["std"].item(), 1000 * s.std(ddof=1))
+        assert raw["n"].item() == 4 and raw["failures"].item() == 0
+        ratio = (s / g.loc[s.index]).to_numpy()
+        norm = csv[
+            (csv.kind == "normalized") & (csv.method == "example-sphere") & (csv.context == k)
+        ]
+        assert np.isclose(norm["mean"].item(), ratio.mean())
+        ref = csv[(csv.kind == "normalized") & (csv.method == "gauss") & (csv.context == k)]
+        assert np.isclose(ref["mean"].item(), 1.0) and np.isclose(ref["std"].item(), 0.0)
+
+
+def test_leaderboard_without_reference_runs_says_so(shapebench):
+    assert shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50", "-q",
+                      "--split", "novel").returncode == 0  # fmt: skip
+    res = shapebench("leaderboard", "--dataset", "synthetic")  # default reference: msc-noopt
+    assert res.returncode == 0, res.stderr
+    md = (shapebench.workspace / "leaderboards" / "synthetic-novel.md").read_text()
+    assert "No runs of the reference method 'msc-noopt'" in md
+    assert "raw 50" in md
+
+
+def test_leaderboard_without_runs_is_a_clear_error(shapebench):
+    res = shapebench("leaderboard", "--dataset", "synthetic")
+    assert res.returncode == 2 and "no finished runs of dataset 'synthetic'" in res.stderr
+
+
+def _log_cell(client, exp_id: str, method: str, card: str) -> None:
+    run = client.create_run(exp_id, tags={
+        "shapebench.kind": "cell", "method": method, "method.display_name": method,
+        "dataset": "synthetic", "dataset.fingerprint": "f", "context_size": "50", "seed": "0",
+        "card.chamfer-l2": card,
+    })  # fmt: skip
+    client.set_terminated(run.info.run_id)
+
+
+def test_leaderboard_refuses_to_mix_metric_cards(tmp_path):
+    settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path, "quick", tmp_path)
+    tracker = Tracker(settings)
+    exp = tracker.experiment_id("synthetic-novel")
+    card = "metric=chamfer-l2;power=2;reduction=mean;direction=symmetric;halved=False;scale=1000.0"
+    _log_cell(tracker.client, exp, "a", card + ";frame=unit;eval_points=30000")
+    _log_cell(tracker.client, exp, "b", card + ";frame=unit;eval_points=16384")
+    with pytest.raises(
+        ShapebenchError,
+        match="different cards.*used by a.*used by b|different cards.*used by b.*used by a",
+    ):
+        build_board(tracker, "synthetic", "novel", "a", "chamfer-l2")
+
+
+def test_paper_figures_stand_beside_ours_for_shapenet():
+    paper = paper_table("shapenet", "novel")
+    raw = pd.DataFrame([{"method": "gauss", "display": "Gauss densification", "context": 50,
+                         "mean": 1.0, "std": 0.5, "n": 3, "failures": 0}])  # fmt: skip
+    board = Board("shapenet", "novel", "chamfer-l2", "metric=chamfer-l2;scale=1000.0",
+                  "msc-noopt", [50], raw, None, "", paper, "1", "f", 0)  # fmt: skip
+    md = render_markdown(board, "shapebench leaderboard --dataset shapenet", "sqlite:///x")
+    assert "| Gauss densification (paper) | 2.97 ± 1.65 | 4.33 ± 4.98 |" in md  # Table 2
+    assert "| MSC (w/o opt) (paper) | 1.60 ± 5.13 | 1.00 ± 0.00 |" in md
+    assert "| Gauss densification (`gauss`) | 1.00 ± 0.50 |" in md

@@ -1,0 +1,63 @@
+"""`shapebench sweep`: cells keyed by config hash, resumable after kill -9."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+from conftest import TINY
+
+SWEEP = """
+name: resume-test
+methods:
+  - name: example-sphere
+    options: {{delay: {delay}}}
+  - gauss
+datasets:
+  - name: synthetic
+    options: {{test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
+               gt_points: 2000}}
+splits: [novel]
+contexts: [50, 100]
+seeds: [0]
+"""
+
+
+def test_sweep_resumes_after_kill_9_without_duplicates(with_example, tmp_path):
+    sb = with_example
+    # Build the tiny dataset first so the timing below is about the method only.
+    assert sb("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
+              "--contexts", "50", "-q").returncode == 0  # fmt: skip
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(SWEEP.format(delay=0.4))  # 4 objects x 0.4 s per cell
+    proc = sb.popen("sweep", str(sweep), "-q", start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        done = [r for r in sb.cell_runs("synthetic-novel")
+                if r.data.tags["method"] == "example-sphere"]  # fmt: skip
+        if done:
+            break
+        time.sleep(0.2)
+    assert done, "no cell finished before the deadline"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+    res = sb("sweep", str(sweep), "-q")
+    assert res.returncode == 0, res.stderr
+    assert "cached" in res.stdout
+    finished = sb.cell_runs("synthetic-novel")
+    keys = [r.data.tags["shapebench.cell_key"] for r in finished]
+    assert len(keys) == len(set(keys)), "a cell was run twice"
+    cells = {(r.data.tags["method"], r.data.tags["context_size"]) for r in finished}
+    assert cells == {("example-sphere", "50"), ("example-sphere", "100"),
+                     ("gauss", "50"), ("gauss", "100")}  # fmt: skip
+    # The run that was killed mid-cell is not left looking alive.
+    assert sb.cell_runs("synthetic-novel", status="RUNNING") == []
+
+    # Everything done: a third run does nothing new; --force reruns every cell.
+    again = sb("sweep", str(sweep), "-q")
+    assert again.returncode == 0 and " new" not in again.stdout
+    forced = sb("sweep", str(sweep), "-q", "--force")
+    assert forced.returncode == 0
+    assert len(sb.cell_runs("synthetic-novel")) == len(finished) + 4
