@@ -15,8 +15,8 @@ from shapebench.tracking import Tracker
 
 
 def _per_object(sb, method: str, k: int) -> pd.DataFrame:
-    run = next(r for r in sb.cell_runs("synthetic-novel")
-               if r.data.tags["method"] == method and r.data.tags["context_size"] == str(k))  # fmt: skip
+    tags = {"method": method, "context_size": str(k)}
+    run = next(r for r in sb.cell_runs("synthetic-novel") if tags.items() <= r.data.tags.items())
     dst = sb.workspace / f"dl-{method}-{k}"
     dst.mkdir(exist_ok=True)
     return pd.read_csv(sb.client().download_artifacts(run.info.run_id, "per_object.csv", str(dst)))

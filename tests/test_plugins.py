@@ -74,7 +74,8 @@ def test_cli_startup_imports_neither_torch_nor_mlflow():
         "from shapebench.cli import cli\n"
         "from shapebench.registry import get_registry\n"
         "reg = get_registry(); assert reg.names('method')\n"
-        "heavy = [m for m in ('torch', 'mlflow', 'trimesh', 'pytorch_lightning') if m in sys.modules]\n"
+        "heavy = ('torch', 'mlflow', 'trimesh', 'pytorch_lightning')\n"
+        "heavy = [m for m in heavy if m in sys.modules]\n"
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
