@@ -23,7 +23,8 @@ class MetricCard:
 
     power:        1 for Euclidean distances, 2 for squared distances (0 when not a distance).
     reduction:    how per-point distances are reduced within each set ("mean" or "sum").
-    direction:    "symmetric" (both directions summed) or "gt->pred" (asymmetric, accuracy to GT).
+    direction:    "symmetric" (both directions summed) or "gt->pred" (asymmetric: completeness,
+                  how well the prediction covers the ground truth).
     halved:       whether the symmetric sum is multiplied by 1/2.
     scale:        the factor values are *displayed* with (1000 means "x1000"); logged raw.
     frame:        the normalisation of shapes the distances are measured in.

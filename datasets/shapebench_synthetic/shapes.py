@@ -330,10 +330,23 @@ class UnknownCategoryError(ValueError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+def _drop_slivers(solid: Solid) -> Solid:
+    """Remove zero-volume components, a numerical by-product of exactly touching faces.
+
+    Real (positive-volume) pieces are kept, so a genuinely disconnected part still shows up.
+    """
+    pieces = solid.decompose()
+    if len(pieces) <= 1:
+        return solid
+    total = sum(p.volume() for p in pieces)
+    return Manifold.compose([p for p in pieces if p.volume() > 1e-9 * total])
+
+
 def _to_trimesh(solid: Solid) -> trimesh.Trimesh:
     """Convert a z-up manifold to a y-up trimesh (proper rotation, so winding stays outward)."""
     if solid.is_empty():
         raise RuntimeError(f"shape generator produced an empty solid ({solid.status()})")
+    solid = _drop_slivers(solid)
     mesh = solid.to_mesh64()
     v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
     faces = np.asarray(mesh.tri_verts, dtype=np.int64)
@@ -412,15 +425,17 @@ def _chair_back(rng: np.random.Generator, w: float, d: float, h: float, t: float
     inner = half_w - pw
     if style == "vertical":
         n = _i(rng, 1, 5)
-        sw = min(_u(rng, 0.008, 0.03), inner / (n + 1))
+        # Cap the width below the spacing: slats that exactly touch leave zero-volume slivers.
+        sw = min(_u(rng, 0.008, 0.03), 0.8 * inner / (n + 1))
         for k in range(n):
             x = -inner + 2 * inner * (k + 1) / (n + 1)
             parts.append(prism_between((x, yb(z0), z0), (x, yb(rail_z), rail_z), sw, 0.3 * bt))
     else:
         n = _i(rng, 1, 3)
-        sh = _u(rng, 0.02, 0.05)
+        spacing = (top - rh - h) / (n + 1)
+        sh = min(_u(rng, 0.02, 0.05), 0.6 * spacing)
         for k in range(n):
-            z = h + (top - rh - h) * (k + 1) / (n + 1)
+            z = h + spacing * (k + 1)
             parts.append(box((2 * inner, 0.6 * bt, sh), (0, yb(z), z)))
     return parts
 

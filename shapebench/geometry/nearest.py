@@ -25,9 +25,9 @@ def nearest_distances(query: Any, reference: Any, tree: cKDTree | None = None) -
     """
     if _is_cuda_tensor(query) or _is_cuda_tensor(reference):
         return _torch_nearest(query, reference)
-    q = _as_numpy(query)
+    q = as_numpy(query)
     if tree is None:
-        tree = kdtree(_as_numpy(reference))
+        tree = kdtree(as_numpy(reference))
     dist, _ = tree.query(q, k=1, workers=-1)
     return dist
 
@@ -36,7 +36,8 @@ def _is_cuda_tensor(x: Any) -> bool:
     return type(x).__module__.startswith("torch") and getattr(x, "is_cuda", False)
 
 
-def _as_numpy(x: Any) -> np.ndarray:
+def as_numpy(x: Any) -> np.ndarray:
+    """A float64 numpy copy of an array or a (CPU or CUDA) tensor."""
     if type(x).__module__.startswith("torch"):
         x = x.detach().cpu().numpy()
     return np.asarray(x, dtype=np.float64)
@@ -50,7 +51,9 @@ def _torch_nearest(query: Any, reference: Any, chunk: int = 4096) -> Any:
     r = torch.as_tensor(reference, device=device, dtype=torch.float32)
     out = torch.empty(len(q), device=device, dtype=torch.float32)
     for start in range(0, len(q), chunk):
-        out[start : start + chunk] = torch.cdist(q[start : start + chunk], r).min(dim=1).values
+        # The matrix-product form of cdist loses ~5e-4 on near-coincident points in float32.
+        d = torch.cdist(q[start : start + chunk], r, compute_mode="donot_use_mm_for_euclid_dist")
+        out[start : start + chunk] = d.min(dim=1).values
     return out
 
 

@@ -21,7 +21,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from shapebench.geometry.nearest import kdtree, nearest_distances
+from shapebench.geometry.nearest import as_numpy, kdtree, nearest_distances
 from shapebench.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
 from shapebench.types import Completion, Context, ObjectData
 
@@ -29,7 +29,7 @@ from shapebench.types import Completion, Context, ObjectData
 def gt_to_pred(prediction: Completion, ground_truth: ObjectData) -> np.ndarray:
     """Distances from each ground-truth point to the prediction (cached per completion)."""
     if "gt_to_pred" not in prediction.cache:
-        prediction.cache["gt_to_pred"] = np.asarray(
+        prediction.cache["gt_to_pred"] = as_numpy(
             nearest_distances(ground_truth.gt_points, prediction.points)
         )
     return prediction.cache["gt_to_pred"]
@@ -41,7 +41,7 @@ def pred_to_gt(prediction: Completion, ground_truth: ObjectData) -> np.ndarray:
         tree = ground_truth.cache.get("gt_tree")
         if tree is None:
             tree = ground_truth.cache["gt_tree"] = kdtree(ground_truth.gt_points)
-        prediction.cache["pred_to_gt"] = np.asarray(
+        prediction.cache["pred_to_gt"] = as_numpy(
             nearest_distances(prediction.points, ground_truth.gt_points, tree=tree)
         )
     return prediction.cache["pred_to_gt"]
