@@ -260,10 +260,19 @@ class Runner:
             )
             if method is None:
                 method = make_method()
+            parent_key = stable_hash(
+                {
+                    "method": plan.method.config(),
+                    "dataset": plan.dataset.fingerprint(),
+                    "split": split,
+                }
+            )
+            self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
             parent = self.tracker.start_run(
                 exp_id,
                 plan.parent_name or f"{plan.method.name} on {plan.dataset.name}/{split}",
                 {
+                    "shapebench.parent_key": parent_key,
                     "shapebench.kind": PARENT_KIND,
                     "method": plan.method.name,
                     "dataset": plan.dataset.name,

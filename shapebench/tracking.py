@@ -99,11 +99,11 @@ class Tracker:
             return None
         return FinishedCell(runs[0].info.run_id, dict(runs[0].data.metrics))
 
-    def abandon_stale(self, exp_id: str, key: str) -> int:
-        """Mark RUNNING runs of a cell (left by a killed process) as KILLED; return how many."""
+    def abandon_stale(self, exp_id: str, key: str, tag: str = "shapebench.cell_key") -> int:
+        """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""
         runs = self.client.search_runs(
             [exp_id],
-            filter_string=f"tags.`shapebench.cell_key` = '{key}' and attributes.status = 'RUNNING'",
+            filter_string=f"tags.`{tag}` = '{key}' and attributes.status = 'RUNNING'",
         )
         for run in runs:
             self.client.set_terminated(run.info.run_id, status="KILLED")

@@ -54,6 +54,9 @@ def test_sweep_resumes_after_kill_9_without_duplicates(with_example, tmp_path):
                      ("gauss", "50"), ("gauss", "100")}  # fmt: skip
     # The run that was killed mid-cell is not left looking alive.
     assert sb.cell_runs("synthetic-novel", status="RUNNING") == []
+    client = sb.client()
+    exp = client.get_experiment_by_name("synthetic-novel").experiment_id
+    assert client.search_runs([exp], "attributes.status = 'RUNNING'") == []  # parents too
 
     # Everything done: a third run does nothing new; --force reruns every cell.
     again = sb("sweep", str(sweep), "-q")
