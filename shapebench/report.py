@@ -99,6 +99,7 @@ def describe_kind(kind: str) -> None:
             sup = ", ".join(sorted(str(s) for s in cls.supervision)) or "context only"
             click.echo(f"    trains: {'yes' if cls.trains else 'no'}; needs: {sup}")
         elif kind == "dataset":
+            _echo_categories(cls)
             click.echo(
                 f"    splits: {', '.join(cls.eval_splits)}; default metric: "
                 f"{cls.default_metric}; needs --data-root: "
@@ -113,3 +114,19 @@ def describe_kind(kind: str) -> None:
             for opt in describe(cls.Options):
                 click.echo(f"    {opt.name} ({opt.type}, default {opt.default!r}): {opt.help}")
         click.echo("")
+
+
+def _echo_categories(cls: type) -> None:
+    """Categories by split, for datasets that know them without a local copy."""
+    if cls.needs_data_root:
+        return
+    from shapebench.config import default_cache_dir
+
+    try:
+        cats = cls(cls.Options(), default_cache_dir()).categories()
+    except Exception:  # describing must never fail because of one dataset
+        return
+    for split in ("trained", "novel"):
+        names = [c.name for c in cats if c.split == split]
+        if names:
+            click.echo(f"    {split} categories ({len(names)}): {', '.join(names)}")
