@@ -13,7 +13,6 @@ points.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import tempfile
 from abc import ABC, abstractmethod
@@ -78,9 +77,6 @@ class Dataset(ABC):
     @abstractmethod
     def load(self, ref: ObjectRef) -> ObjectData:
         """The preprocessed arrays of one object; raise :class:`ObjectLoadError` if impossible."""
-
-    def prepare(self, refs: list[ObjectRef]) -> None:  # noqa: B027 - optional hook
-        """Optionally precompute what :meth:`load` needs (called with a progress bar)."""
 
     def max_context_size(self) -> int | None:
         """An upper bound on any object's visible points, known without loading (or None)."""
@@ -172,13 +168,6 @@ class MeshDataset(Dataset):
             raise ObjectLoadError(reason) from exc
         save_npz_atomic(path, arrays)
         return arrays
-
-    def prepare(self, refs: list[ObjectRef]) -> None:
-        for ref in refs:
-            if not self.cache_path(ref).exists():
-                # A failure is recorded per object when the object is evaluated.
-                with contextlib.suppress(ObjectLoadError):
-                    self.load(ref)
 
 
 def save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:

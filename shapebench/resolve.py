@@ -40,8 +40,7 @@ class ResolvedMethod:
         }
 
     def instantiate(self) -> Method:
-        method = self.cls(self.options)
-        return method
+        return self.cls(self.options)
 
 
 def resolve_method(

@@ -59,7 +59,6 @@ class RunPlan:
     force: bool = False
     quiet: bool = False
     checkpoint: dict[str, str] = field(default_factory=dict)  # key/path/run id when trained
-    parent_name: str | None = None
 
 
 def validate_contexts(contexts: list[int]) -> list[int]:
@@ -270,7 +269,7 @@ class Runner:
             self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
             parent = self.tracker.start_run(
                 exp_id,
-                plan.parent_name or f"{plan.method.name} on {plan.dataset.name}/{split}",
+                f"{plan.method.name} on {plan.dataset.name}/{split}",
                 {
                     "shapebench.parent_key": parent_key,
                     "shapebench.kind": PARENT_KIND,

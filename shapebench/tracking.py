@@ -141,10 +141,6 @@ class Tracker:
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)
 
-    def runs_url(self, exp_id: str) -> str:
-        base = self.uri if self.settings.is_remote else "http://127.0.0.1:5000"
-        return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs"
-
 
 def _param_str(value: Any) -> str:
     text = value if isinstance(value, str) else json.dumps(value, default=str)

@@ -901,19 +901,31 @@ def _wing(
     return hull(pts)
 
 
+def _mirror_across_y0(parts: list[Solid], shift: float) -> list[Solid]:
+    """Parts plus mirror images for the other side, nudged by ``shift`` along y.
+
+    The wing roots cross y = 0 so the two halves overlap. An exact mirror would make the halves
+    intersect precisely on the y = 0 plane, where the fuselage and fin also have vertices and
+    edges; such degenerate contacts leave near-coincident vertices in the union.
+    """
+    return parts + [p.mirror((0.0, 1.0, 0.0)).translate((0.0, shift, 0.0)) for p in parts]
+
+
 @_family("airplane", "trained", "tapered fuselage, swept wings, tailplane and fin, engines")
 def _airplane(rng: np.random.Generator) -> Solid:
     length = 1.0
     rf = length * _u(rng, 0.04, 0.08)
     rn, rt = rf * _u(rng, 0.5, 0.9), rf * _u(rng, 0.2, 0.4)
     tail_z = rf - rt
+    # Fuselage: hull of spheres, each turned about x so that no hull vertex or edge lies on the
+    # y = 0 plane, where the fin and the wing-half overlaps would meet it degenerately.
+    stations = [(length / 2 - rn, 0.0, rn), (0.2 * length, 0.0, rf), (-0.15 * length, 0.0, rf),
+                (-length / 2 + rt, tail_z, rt)]  # fmt: skip
     parts = [
         Manifold.batch_hull(
             [
-                sphere((length / 2 - rn, 0, 0), rn, 20),
-                sphere((0.2 * length, 0, 0), rf, 20),
-                sphere((-0.15 * length, 0, 0), rf, 20),
-                sphere((-length / 2 + rt, 0, tail_z), rt, 20),
+                Manifold.sphere(r, 20).rotate((13.0, 0.0, 0.0)).translate((x, 0.0, z))
+                for x, z, r in stations
             ]
         )
     ]
@@ -947,17 +959,18 @@ def _airplane(rng: np.random.Generator) -> Solid:
                     r_end=0.8 * re,
                 )
             )
-    parts += [w.mirror((0.0, 1.0, 0.0)) for w in wings] + wings
+    parts += _mirror_across_y0(wings, 0.002 * length)
 
     # Tail: vertical fin on the upswept tail cone, tailplane low or on top of the fin (T-tail).
     fin_c = length * _u(rng, 0.1, 0.18)
     fin_h = length * _u(rng, 0.08, 0.18)
     fin_sweep = fin_h * _u(rng, 0.3, 1.2)
     fin_le = -length / 2 + rt + fin_c
-    fin_tip = (fin_le - fin_sweep, 0.0, rf + fin_h)
+    fin_y = 0.001 * length  # off the symmetry plane, for the same reason as the fuselage
+    fin_tip = (fin_le - fin_sweep, fin_y, rf + fin_h)
     parts.append(
         _wing(
-            (fin_le, 0, tail_z),
+            (fin_le, fin_y, tail_z),
             fin_tip,
             (fin_c, 0.5 * fin_c),
             (0.02 * length, 0.01 * length),
@@ -967,13 +980,13 @@ def _airplane(rng: np.random.Generator) -> Solid:
     sc = length * _u(rng, 0.06, 0.12)
     ss = length * _u(rng, 0.12, 0.22)
     if _chance(rng, 0.25):
-        root = (fin_tip[0], -0.005 * length, fin_tip[2] - 0.005 * length)
+        root = (fin_tip[0] - 0.02 * fin_c, -0.005 * length, fin_tip[2] - 0.005 * length)
         sc = min(sc, 0.5 * fin_c)
     else:
         root = (-length / 2 + rt + 1.1 * sc, -0.005 * length, tail_z)
     tip = (root[0] - 0.5 * sc, ss, root[2] + 0.01 * length)
     stab = _wing(root, tip, (sc, 0.5 * sc), (0.012 * length, 0.006 * length))
-    parts += [stab, stab.mirror((0.0, 1.0, 0.0))]
+    parts += _mirror_across_y0([stab], 0.002 * length)
     return union(parts)
 
 
