@@ -10,6 +10,7 @@ ones only test objects.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from importlib.metadata import version
 from typing import ClassVar
 
 from shapebench.dataset import MeshDataset, MeshOptions
@@ -40,7 +41,9 @@ class SyntheticDataset(MeshDataset):
 
     @property
     def version(self) -> str:
-        return f"gen{shapes.GENERATOR_VERSION}-prep1"
+        # The meshes are byte-identical only for one manifold3d release (its boolean output can
+        # change between versions), so its version is part of the data version.
+        return f"gen{shapes.GENERATOR_VERSION}-manifold{version('manifold3d')}-prep1"
 
     def categories(self) -> list[Category]:
         return [Category(name, fam.split) for name, fam in shapes.CATEGORIES.items()]
