@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import tempfile
 from abc import ABC, abstractmethod
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -62,9 +62,37 @@ class Dataset(ABC):
         return "1"
 
     def fingerprint(self) -> str:
-        """Identifies the exact data this instance produces (cache keys, run tags)."""
-        opts = asdict(self.options) if self.options is not None else {}
-        return stable_hash({"name": self.name, "version": self.version, "options": opts})
+        """Identifies the evaluation data (cache keys, context draws, cell keys, run tags).
+
+        Options marked ``metadata={"training_only": True}`` (sizes of training samples) are left
+        out, so changing them retrains methods but never changes test objects or contexts.
+        """
+        return stable_hash(
+            {
+                "name": self.name,
+                "version": self.version,
+                "options": _options(self.options, training=False),
+            }
+        )
+
+    def config(self) -> dict[str, Any]:
+        """What identifies the evaluation data, for run params and cell keys."""
+        return {
+            "name": self.name,
+            "version": self.version,
+            "fingerprint": self.fingerprint(),
+            "options": _options(self.options, training=False),
+        }
+
+    def training_fingerprint(self) -> str:
+        """Identifies everything training sees (checkpoint keys)."""
+        return stable_hash(
+            {
+                "name": self.name,
+                "version": self.version,
+                "options": _options(self.options, training=True),
+            }
+        )
 
     @abstractmethod
     def categories(self) -> list[Category]:
@@ -75,12 +103,27 @@ class Dataset(ABC):
         """The objects of ``split`` (``train``, ``trained`` or ``novel``), in a stable order."""
 
     @abstractmethod
-    def load(self, ref: ObjectRef) -> ObjectData:
-        """The preprocessed arrays of one object; raise :class:`ObjectLoadError` if impossible."""
+    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
+        """The preprocessed arrays of one object; raise :class:`ObjectLoadError` if impossible.
+
+        Always: visible surface points and normals, and the ground truth. ``need`` asks for
+        training supervision as well, in ``ObjectData.extra``: ``"sdf"`` (``(m, 4)`` rows of
+        x, y, z, sdf) for SDF_SAMPLES, ``"complete_points"`` for COMPLETE_POINTS.
+        """
 
     def max_context_size(self) -> int | None:
         """An upper bound on any object's visible points, known without loading (or None)."""
         return None
+
+
+def _options(options: Any, training: bool) -> dict[str, Any]:
+    if options is None or not is_dataclass(options):
+        return {}
+    return {
+        f.name: getattr(options, f.name)
+        for f in fields(options)
+        if training or not f.metadata.get("training_only")
+    }
 
 
 @dataclass(frozen=True)
@@ -98,6 +141,14 @@ class MeshOptions:
         default=100, metadata={"help": "viewpoints around each object for visibility"}
     )
     seed: int = field(default=0, metadata={"help": "seed of the object split and sampling"})
+    sdf_samples: int = field(
+        default=500_000,
+        metadata={"help": "SDF training samples per object (DeepSDF: 500k)", "training_only": True},
+    )
+    complete_points: int = field(
+        default=16_384,
+        metadata={"help": "complete-surface points per object (PCN: 16384)", "training_only": True},
+    )
 
 
 class MeshDataset(Dataset):
@@ -130,27 +181,47 @@ class MeshDataset(Dataset):
     def cache_path(self, ref: ObjectRef) -> Path:
         return self.cache_root / "objects" / (ref.id.replace("/", "__") + ".npz")
 
-    def load(self, ref: ObjectRef) -> ObjectData:
+    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
         path = self.cache_path(ref)
         failed = path.with_suffix(".error.txt")
         if failed.exists():  # preprocessing already failed for this exact data version
             raise ObjectLoadError(failed.read_text())
-        if path.exists():
-            try:
-                with np.load(path) as z:
-                    arrays = {k: z[k] for k in z.files}
-            except Exception:  # a truncated file from a crash: rebuild it
-                arrays = self._build(ref, path)
-        else:
+        arrays = _read_npz(path)
+        if arrays is None:
             arrays = self._build(ref, path)
-        extra = {
-            k: v
-            for k, v in arrays.items()
-            if k not in ("surface_points", "surface_normals", "gt_points")
-        }
+        extra = {k: v for k, v in arrays.items() if k not in _BASE_ARRAYS}
+        for kind in need:
+            if kind in _EXTRA_ARRAYS:
+                extra[_EXTRA_ARRAYS[kind]] = self._extra(ref, kind)
         return ObjectData(
             ref, arrays["surface_points"], arrays["surface_normals"], arrays["gt_points"], extra
         )
+
+    def _extra(self, ref: ObjectRef, kind: Supervision) -> np.ndarray:
+        """A training array, built from the normalised mesh on first use and cached on its own."""
+        name = _EXTRA_ARRAYS[kind]
+        path = self.training_cache_root / (ref.id.replace("/", "__") + f".{name}.npz")
+        cached = _read_npz(path)
+        if cached is not None:
+            return cached[name]
+        from shapebench.preprocess.normalize import normalize
+        from shapebench.preprocess.samples import complete_points, sdf_samples
+
+        try:
+            unit, _, _ = normalize(self.mesh(ref))
+        except Exception as exc:
+            raise ObjectLoadError(f"cannot build {name}: {type(exc).__name__}: {exc}") from exc
+        rng = np.random.default_rng(stable_seed(name, self.training_fingerprint(), ref.id))
+        if kind is Supervision.SDF_SAMPLES:
+            array = sdf_samples(unit, self.options.sdf_samples, rng)
+        else:
+            array = complete_points(unit, self.options.complete_points, rng)
+        save_npz_atomic(path, {name: array})
+        return array
+
+    @property
+    def training_cache_root(self) -> Path:
+        return self.cache_dir / self.name / self.training_fingerprint() / "training"
 
     def _build(self, ref: ObjectRef, path: Path) -> dict[str, np.ndarray]:
         try:
@@ -168,6 +239,21 @@ class MeshDataset(Dataset):
             raise ObjectLoadError(reason) from exc
         save_npz_atomic(path, arrays)
         return arrays
+
+
+_BASE_ARRAYS = ("surface_points", "surface_normals", "gt_points")
+_EXTRA_ARRAYS = {Supervision.SDF_SAMPLES: "sdf", Supervision.COMPLETE_POINTS: "complete_points"}
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray] | None:
+    """The arrays of ``path``, or None if it is missing or truncated (then it is rebuilt)."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    except Exception:
+        return None
 
 
 def save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:

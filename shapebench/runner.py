@@ -72,16 +72,10 @@ def validate_contexts(contexts: list[int]) -> list[int]:
 
 def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: int) -> dict:
     """Everything that determines a cell's result; its hash is the cell key."""
-    ds = plan.dataset
     return {
         "protocol": PROTOCOL_VERSION,
         "method": plan.method.config(),
-        "dataset": {
-            "name": ds.name,
-            "version": ds.version,
-            "fingerprint": ds.fingerprint(),
-            "options": flatten("", _asdict(ds.options)),
-        },
+        "dataset": plan.dataset.config(),
         "split": split,
         "context_size": size,
         "seed": seed,
@@ -89,12 +83,6 @@ def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: in
         "metrics": {m.name: m.card(eval_points).as_tag() for m in plan.metrics},
         "checkpoint": plan.checkpoint.get("key"),
     }
-
-
-def _asdict(options: Any) -> dict:
-    from dataclasses import asdict, is_dataclass
-
-    return asdict(options) if is_dataclass(options) else {}
 
 
 class ObjectCache:

@@ -30,7 +30,9 @@ RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 
 
 def checkpoint_key(method: ResolvedMethod, dataset: Dataset, seed: int) -> str:
-    return stable_hash({"method": method.config(), "dataset": dataset.fingerprint(), "seed": seed})
+    return stable_hash(
+        {"method": method.config(), "dataset": dataset.training_fingerprint(), "seed": seed}
+    )
 
 
 def checkpoint_dir(settings: Settings, method: ResolvedMethod, key: str) -> Path:

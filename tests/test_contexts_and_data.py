@@ -75,3 +75,22 @@ def test_option_parsing_and_validation():
         build(GaussOptions, {"sigma": "wide"}, "gauss")
     with pytest.raises(ConfigError, match="expects KEY=VALUE"):
         parse_assignments(["sigma"], "-O")
+
+
+def test_training_samples_are_cached_apart_and_leave_evaluation_data_alone(tmp_path):
+    from shapebench.types import Supervision
+
+    small = SyntheticOptions(test_per_category=1, train_per_category=1, surface_candidates=2000,
+                             gt_points=1000, sdf_samples=5000, complete_points=512)  # fmt: skip
+    ds = SyntheticDataset(small, tmp_path)
+    ref = ds.objects(TRAIN)[0]
+    data = ds.load(ref, need=frozenset({Supervision.SDF_SAMPLES, Supervision.COMPLETE_POINTS}))
+    sdf = data.extra["sdf"]
+    assert sdf.shape[1] == 4 and 4500 < len(sdf) <= 5000
+    assert (sdf[:, 3] < 0).any() and (sdf[:, 3] > 0).any()  # both sides of the surface
+    assert data.extra["complete_points"].shape == (512, 3)
+    # The training sizes are not part of the evaluation data: same fingerprint, same contexts.
+    bigger = SyntheticDataset(SyntheticOptions(**{**small.__dict__, "sdf_samples": 9000}), tmp_path)
+    assert bigger.fingerprint() == ds.fingerprint()
+    assert bigger.training_fingerprint() != ds.training_fingerprint()
+    np.testing.assert_array_equal(bigger.load(ref).surface_points, data.surface_points)
