@@ -98,4 +98,5 @@ def test_sdf_samples_match_a_sphere_with_and_without_a_closed_mesh():
         near = np.abs(truth) < 0.05
         # Facets of the icosphere deviate from the true sphere by < 0.004.
         assert np.abs(s[near, 3] - truth[near]).max() < 0.006
-        assert (np.sign(s[:, 3]) == np.sign(truth)).mean() > 0.995
+        clear = np.abs(truth) > 0.005  # beyond the facets' deviation the sign is unambiguous
+        assert (np.sign(s[clear, 3]) == np.sign(truth[clear])).mean() > 0.999
