@@ -320,7 +320,7 @@ def train(
     if not resolved.cls.trains:
         raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
     ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings)
+    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet)
     click.echo(f"checkpoint: {record['path']}")
 
 

@@ -60,6 +60,7 @@ class TrainingContext:
     workdir: Path
     tracking_uri: str
     run_id: str | None = None
+    quiet: bool = False
 
 
 class Method(ABC):
@@ -89,6 +90,10 @@ class Method(ABC):
     supervision: ClassVar[frozenset[Supervision]] = frozenset()
     trains: ClassVar[bool] = False
     Options: ClassVar[type] = NoOptions
+    #: Methods with the same family share checkpoints (``msc`` and ``msc-noopt`` differ only at
+    #: completion time). Options marked ``metadata={"completion_only": True}`` do not change the
+    #: checkpoint either.
+    checkpoint_family: ClassVar[str] = ""
 
     def __init__(self, options: Any | None = None) -> None:
         self.options = options if options is not None else self.Options()
@@ -103,6 +108,26 @@ class Method(ABC):
     def load_checkpoint(self, path: Path) -> None:
         """Restore the state :meth:`fit` saved to ``path``."""
         raise NotImplementedError(f"method {self.name!r} cannot load checkpoints")
+
+    #: How many contexts :meth:`complete_batch` receives at once (latent optimisation batches).
+    batch_size: ClassVar[int] = 1
+
+    def complete_batch(
+        self, contexts: list[Context], n_points: int
+    ) -> list[Completion | Exception]:
+        """Complete several contexts of the same size at once.
+
+        Override it to batch work over objects (latent optimisation on a GPU); return one
+        Completion, or the Exception that made that object fail, per context, in order. The
+        default calls :meth:`complete` for each.
+        """
+        out: list[Completion | Exception] = []
+        for ctx in contexts:
+            try:
+                out.append(self.complete(ctx, n_points))
+            except Exception as exc:  # recorded as that object's failure
+                out.append(exc)
+        return out
 
     @abstractmethod
     def complete(self, context: Context, n_points: int) -> Completion:

@@ -8,6 +8,7 @@ carry a help text in ``field(metadata={"help": ...})``. Values given as strings 
 from __future__ import annotations
 
 import dataclasses
+import types
 import typing
 from typing import Any
 
@@ -52,7 +53,7 @@ def parse_assignments(pairs: tuple[str, ...] | list[str], flag: str) -> dict[str
 
 def _coerce(name: str, value: Any, annotation: Any, owner: str) -> Any:
     origin = typing.get_origin(annotation)
-    if origin is typing.Union or str(origin) == "types.UnionType":
+    if origin in (typing.Union, types.UnionType):
         args = typing.get_args(annotation)
         if value is None and type(None) in args:
             return None

@@ -39,6 +39,23 @@ class ResolvedMethod:
             "version": plugin.version,
         }
 
+    def training_config(self) -> dict[str, Any]:
+        """What determines a training's result: options that only affect completion are left out."""
+        from dataclasses import fields
+
+        opts_dict = {
+            f.name: getattr(self.options, f.name)
+            for f in fields(self.options)
+            if not f.metadata.get("completion_only")
+        }
+        plugin = self.registration.plugin
+        return {
+            "family": self.cls.checkpoint_family or self.name,
+            "options": opts_dict,
+            "distribution": plugin.distribution,
+            "version": plugin.version,
+        }
+
     def instantiate(self) -> Method:
         return self.cls(self.options)
 

@@ -153,27 +153,23 @@ def _valid_points(completion: Any) -> str | None:
     return None
 
 
-def evaluate_object(
-    method: Method, data: ObjectData, ctx: Context, metrics: list[Metric]
+def score(
+    outcome: Completion | Exception, data: ObjectData, ctx: Context, metrics: list[Metric]
 ) -> tuple[dict[str, Any], Completion | None]:
+    """The per-object row for one method output: scores, or the reason it failed."""
     row: dict[str, Any] = {"status": "ok", "error": ""}
-    start = time.perf_counter()
-    try:
-        completion = method.complete(ctx, n_points=len(data.gt_points))
-    except Exception as exc:  # the method's bug must not lose the other objects
-        row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
+    if isinstance(outcome, Exception):  # the method's failure must not lose the other objects
+        row.update(status="failed", error=f"{type(outcome).__name__}: {outcome}")
         return row, None
-    finally:
-        row["seconds"] = time.perf_counter() - start
-    problem = _valid_points(completion)
+    problem = _valid_points(outcome)
     if problem:
         row.update(status="failed", error=problem)
         return row, None
-    completion.points = np.asarray(completion.points, dtype=np.float32)
-    row["n_points"] = len(completion.points)
+    outcome.points = np.asarray(outcome.points, dtype=np.float32)
+    row["n_points"] = len(outcome.points)
     for metric in metrics:
         try:
-            value = float(metric.compute(completion, data, ctx))
+            value = float(metric.compute(outcome, data, ctx))
         except Exception as exc:
             row.update(status="failed", error=f"metric {metric.name}: {type(exc).__name__}: {exc}")
             return row, None
@@ -181,9 +177,22 @@ def evaluate_object(
             row.update(status="failed", error=f"metric {metric.name} is {value}")
             return row, None
         row[metric.name] = value
-    for key, value in (completion.info or {}).items():
+    for key, value in (outcome.info or {}).items():
         row[f"info.{key}"] = value
-    return row, completion
+    return row, outcome
+
+
+def complete_chunk(method: Method, contexts: list[Context], n_points: int):
+    """The method's outputs for a chunk of contexts, and the seconds spent per object."""
+    start = time.perf_counter()
+    try:
+        outputs = method.complete_batch(contexts, n_points)
+        if len(outputs) != len(contexts):
+            raise RuntimeError(f"complete_batch returned {len(outputs)} results for "
+                               f"{len(contexts)} contexts")  # fmt: skip
+    except Exception as exc:  # a crash of the whole batch fails these objects only
+        outputs = [exc] * len(contexts)
+    return outputs, (time.perf_counter() - start) / max(len(contexts), 1)
 
 
 def summarize(table: pd.DataFrame, metrics: list[Metric]) -> dict[str, float]:
@@ -300,22 +309,32 @@ class Runner:
         try:
             rows, contexts, examples = [], [], []
             label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
+            chunk = max(1, int(getattr(method, "batch_size", 1)))
             with _progress(len(refs), label, plan.quiet) as bar:
-                for ref in refs:
-                    row: dict[str, Any] = {"object": ref.id, "category": ref.category}
-                    try:
-                        data = cache.get(ref)
-                        ctx = store.context(data, size, seed)
-                    except (ObjectLoadError, ValueError) as exc:
-                        row.update(status="failed", error=str(exc), seconds=0.0)
-                    else:
+                for start in range(0, len(refs), chunk):
+                    ready = []  # (row, data, ctx) of the objects that could be loaded
+                    for ref in refs[start : start + chunk]:
+                        row: dict[str, Any] = {"object": ref.id, "category": ref.category}
+                        rows.append(row)
+                        try:
+                            data = cache.get(ref)
+                            ctx = store.context(data, size, seed)
+                        except (ObjectLoadError, ValueError) as exc:
+                            row.update(status="failed", error=str(exc), seconds=0.0)
+                            bar.update()
+                            continue
                         contexts.append(ctx)
-                        result, completion = evaluate_object(method, data, ctx, plan.metrics)
-                        row.update(result)
+                        ready.append((row, data, ctx))
+                    if not ready:
+                        continue
+                    n_points = len(ready[0][1].gt_points)
+                    outputs, seconds = complete_chunk(method, [r[2] for r in ready], n_points)
+                    for (row, data, ctx), output in zip(ready, outputs, strict=True):
+                        result, completion = score(output, data, ctx, plan.metrics)
+                        row.update(result, seconds=seconds)
                         if completion is not None and len(examples) < EXAMPLE_PLYS:
-                            examples.append((ref.id, completion.points))
-                    rows.append(row)
-                    bar.update()
+                            examples.append((ctx.ref.id, completion.points))
+                        bar.update()
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
             tr.log_params(run_id, flatten("", cfg))

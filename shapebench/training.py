@@ -31,12 +31,17 @@ RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 
 def checkpoint_key(method: ResolvedMethod, dataset: Dataset, seed: int) -> str:
     return stable_hash(
-        {"method": method.config(), "dataset": dataset.training_fingerprint(), "seed": seed}
+        {
+            "method": method.training_config(),
+            "dataset": dataset.training_fingerprint(),
+            "seed": seed,
+        }
     )
 
 
 def checkpoint_dir(settings: Settings, method: ResolvedMethod, key: str) -> Path:
-    return settings.artifact_root.parent / "checkpoints" / method.name / key
+    family = method.cls.checkpoint_family or method.name
+    return settings.artifact_root.parent / "checkpoints" / family / key
 
 
 def _global_rank() -> int:
@@ -56,6 +61,7 @@ def train_here(
     dataset: Dataset,
     trainer: TrainerOptions,
     settings: Settings,
+    quiet: bool = False,
 ) -> dict[str, Any]:
     """Train in this process (the ``shapebench train`` command); return the checkpoint record."""
     key = checkpoint_key(method, dataset, trainer.seed)

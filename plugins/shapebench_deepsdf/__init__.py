@@ -1,0 +1,1 @@
+"""DeepSDF (Park et al., 2019) as a shapebench method plugin."""

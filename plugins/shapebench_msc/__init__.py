@@ -1,0 +1,1 @@
+"""MSC, Bayesian meta-learning shape completion (the paper this benchmark reproduces)."""

@@ -1,0 +1,96 @@
+"""MSC's LightningModule: encoder, IGR decoder, ELBO + Eikonal (+ normals)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import pytorch_lightning as pl
+import torch
+from torch import nn
+
+from shapebench.implicit.losses import (
+    eikonal,
+    gaussian_kl,
+    gradient,
+    normal_term,
+    offsurface_samples,  # fmt: skip
+)
+from shapebench.implicit.networks import IGRDecoder, MSCEncoder
+
+LOG_SIGMA_MIN = math.log(1e-4)
+
+
+class MSCModule(pl.LightningModule):
+    def __init__(
+        self,
+        latent_dim: int,
+        width: int,
+        depth: int,
+        encoder_width: int,
+        encoder_layers: int,
+        mean_weights: str,
+        lr: float,
+        lr_halve_every: int,
+        eikonal_weight: float,
+        normal_weight: float,
+        offsurface: str,
+        max_target: int,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.encoder = MSCEncoder(latent_dim, encoder_width, encoder_layers, mean_weights)
+        self.decoder = IGRDecoder(latent_dim, width, depth)
+        self.log_sigma = nn.Parameter(torch.tensor(math.log(0.01)))  # decoder noise, learned
+
+    def sigma(self) -> torch.Tensor:
+        return self.log_sigma.clamp(min=LOG_SIGMA_MIN).exp()
+
+    def nll(self, f: torch.Tensor) -> torch.Tensor:
+        """-log N(0 | f, sigma^2) per point (every observed point lies on the surface, s = 0)."""
+        log_sigma = self.log_sigma.clamp(min=LOG_SIGMA_MIN)
+        return 0.5 * (f / log_sigma.exp()) ** 2 + log_sigma + 0.5 * math.log(2 * math.pi)
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        h = self.hparams
+        pts, nrm = batch["points"], batch["normals"]
+        b, n, _ = pts.shape
+        mq, vq = self.encoder(pts, nrm)  # q = p(h | D_k)
+        # A random context subset D_k^ctxt (log-uniform size) gives the prior of equation 3.
+        m = int(math.exp(torch.empty(1).uniform_(0.0, math.log(n)).item()))
+        perm = torch.randperm(n, device=pts.device)
+        ctx = perm[:m]
+        mp, vp = self.encoder(pts[:, ctx], nrm[:, ctx])
+        latent = mq + vq.sqrt() * torch.randn_like(mq)
+        t = int(torch.randint(1, min(h.max_target, n) + 1, (1,)).item())
+        target = perm[torch.randperm(n, device=pts.device)[:t]]
+        tp, tn = pts[:, target], nrm[:, target]
+        off = offsurface_samples(pts, h.offsurface)
+        x = torch.cat([tp, off], dim=1).detach().requires_grad_(True)
+        f = self.decoder(latent, x)
+        g = gradient(f, x)
+        nll = self.nll(f[:, :t]).mean(dim=1) * n  # the sum over D_k, estimated from t points
+        kl = gaussian_kl(mq, vq, mp, vp)
+        elbo = ((nll + kl) / n).mean()
+        eik = eikonal(g[:, t:]).mean()
+        normals = normal_term(g[:, :t], tn).mean()
+        loss = elbo + h.eikonal_weight * eik + h.normal_weight * normals
+        self.log_dict({"train/loss": loss, "train/elbo": elbo, "train/kl": kl.mean(),
+                       "train/eikonal": eik, "train/normals": normals,
+                       "train/sigma": self.sigma()},
+                      on_step=False, on_epoch=True, batch_size=b, sync_dist=True)  # fmt: skip
+        return loss
+
+    def configure_optimizers(self):
+        h = self.hparams
+        opt = torch.optim.Adam(self.parameters(), lr=h.lr)
+        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=h.lr_halve_every, gamma=0.5)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+
+    def context_nll(self, points: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
+        """Equation 6's objective: the negative log-likelihood of the context points."""
+
+        def loss(z: torch.Tensor) -> torch.Tensor:
+            return self.nll(self.decoder(z, points)).sum(dim=1)
+
+        return loss

@@ -1,0 +1,85 @@
+"""What IGR, DeepSDF and MSC share as shapebench methods: Lightning training into a checkpoint,
+batched latent inference, and meshing each latent into a completion."""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch
+
+from shapebench.method import Method, TrainingContext
+from shapebench.types import Completion, Context
+
+
+class ImplicitMethod(Method):
+    """Subclasses set ``Module`` (a LightningModule class with ``decoder``) and implement
+    :meth:`build_module`, :meth:`data_module` and :meth:`infer_latents`."""
+
+    trains = True
+    batch_size = 8
+    Module: ClassVar[type]
+
+    def __init__(self, options: Any | None = None) -> None:
+        super().__init__(options)
+        self.module = None
+
+    @abstractmethod
+    def data_module(self, ctx: TrainingContext):
+        """The ShapeDataModule this method trains on."""
+
+    @abstractmethod
+    def build_module(self, n_shapes: int):
+        """A fresh LightningModule for ``n_shapes`` training objects."""
+
+    @abstractmethod
+    def infer_latents(self, contexts: list[Context]) -> torch.Tensor:
+        """One latent code per context, (B, d), on :attr:`device`."""
+
+    def fit(self, ctx: TrainingContext) -> Path:
+        from shapebench.lightning_fit import fit_lightning
+
+        data = self.data_module(ctx)
+        n_shapes = data.load_objects()
+        return fit_lightning(self.build_module(n_shapes), data, ctx, self.options.epochs)
+
+    def load_checkpoint(self, path: Path) -> None:
+        from shapebench.lightning_fit import device
+
+        self.device = device()
+        self.module = self.Module.load_from_checkpoint(str(path), map_location=self.device)
+        self.module.eval()
+        for p in self.module.parameters():
+            p.requires_grad_(False)
+
+    def complete_batch(
+        self, contexts: list[Context], n_points: int
+    ) -> list[Completion | Exception]:
+        if self.module is None:
+            raise RuntimeError(f"{self.name}: load_checkpoint() was not called")
+        latents = self.infer_latents(contexts)
+        out: list[Completion | Exception] = []
+        for i, (z, ctx) in enumerate(zip(latents, contexts, strict=True)):
+            try:
+                out.append(self.decode(i, z, ctx, n_points))
+            except Exception as exc:  # no surface, NaN, too large: this object fails alone
+                out.append(exc)
+        return out
+
+    def decode(self, i: int, z: torch.Tensor, ctx: Context, n_points: int) -> Completion:
+        """The completion of the ``i``-th context of the batch from its code ``z``."""
+        return self.mesh(z, ctx, n_points)
+
+    def mesh(self, z: torch.Tensor, ctx: Context, n_points: int) -> Completion:
+        from shapebench.implicit.completion import mesh_completion
+
+        return mesh_completion(self.module.decoder, z, ctx, n_points,
+                               self.options.mesh_resolution, self.device,
+                               bf16=self.options.mesh_bf16)  # fmt: skip
+
+    def complete(self, context: Context, n_points: int) -> Completion:
+        result = self.complete_batch([context], n_points)[0]
+        if isinstance(result, Exception):
+            raise result
+        return result

@@ -1,0 +1,168 @@
+"""Decoders and the MSC encoder, following the official code and the paper.
+
+* :class:`IGRDecoder`: IGR's ``ImplicitNet``: ``depth`` hidden layers of ``width``, Softplus with
+  beta = 100, the network input re-injected at the middle layer (concatenated and divided by
+  sqrt(2)), the latent code *before* xyz, and the geometric initialisation that makes the initial
+  function approximately the SDF of a sphere of radius ``radius_init``. MSC uses it too.
+* :class:`DeepSDFDecoder`: DeepSDF's decoder: ReLU (the paper's choice), dropout 0.2 and weight
+  norm on every hidden layer, the input re-injected at the middle layer without scaling, and the
+  final tanh that the official forward always applies.
+* :class:`MSCEncoder`: the posterior of equation 2 from per-point networks f and g.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+def _dims(in_dim: int, width: int, depth: int, skip: int) -> list[tuple[int, int]]:
+    """(in, out) of each linear layer; the layer before the skip leaves room for the input."""
+    dims = [in_dim] + [width] * depth + [1]
+    layers = []
+    for i in range(len(dims) - 1):
+        out = dims[i + 1] - in_dim if i + 1 == skip else dims[i + 1]
+        layers.append((dims[i], out))
+    return layers
+
+
+class IGRDecoder(nn.Module):
+    """f(z, x): latent ``z`` (B, d) or (B, n, d), points ``x`` (B, n, 3) -> SDF (B, n)."""
+
+    def __init__(
+        self,
+        latent_dim: int,
+        width: int = 512,
+        depth: int = 8,
+        beta: float = 100.0,
+        radius_init: float = 1.0,
+        geometric_init: bool = True,
+    ) -> None:
+        super().__init__()
+        self.latent_dim = latent_dim
+        self.skip = depth // 2
+        in_dim = latent_dim + 3
+        self.layers = nn.ModuleList(
+            nn.Linear(i, o) for i, o in _dims(in_dim, width, depth, self.skip)
+        )
+        self.activation = nn.Softplus(beta=beta)
+        if geometric_init:
+            self._geometric_init(radius_init)
+
+    def _geometric_init(self, radius: float) -> None:
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            if i == last:
+                mean = math.sqrt(math.pi) / math.sqrt(layer.in_features)
+                nn.init.normal_(layer.weight, mean=mean, std=1e-5)
+                nn.init.constant_(layer.bias, -radius)
+            else:
+                nn.init.normal_(layer.weight, 0.0, math.sqrt(2) / math.sqrt(layer.out_features))
+                nn.init.constant_(layer.bias, 0.0)
+
+    def forward(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        if z.dim() == 2:
+            z = z[:, None, :].expand(-1, x.shape[1], -1)
+        inp = torch.cat([z, x], dim=-1)
+        h = inp
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            if i == self.skip:
+                h = torch.cat([h, inp], dim=-1) / math.sqrt(2)
+            h = layer(h)
+            if i < last:
+                h = self.activation(h)
+        return h.squeeze(-1)
+
+
+class DeepSDFDecoder(nn.Module):
+    """DeepSDF's decoder, same call convention as :class:`IGRDecoder`."""
+
+    def __init__(self, latent_dim: int, width: int = 512, depth: int = 8,
+                 dropout: float = 0.2) -> None:  # fmt: skip
+        super().__init__()
+        self.latent_dim = latent_dim
+        self.skip = depth // 2
+        in_dim = latent_dim + 3
+        layers = []
+        for i, (a, b) in enumerate(_dims(in_dim, width, depth, self.skip)):
+            lin = nn.Linear(a, b)
+            is_hidden = i < depth
+            layers.append(nn.utils.parametrizations.weight_norm(lin) if is_hidden else lin)
+        self.layers = nn.ModuleList(layers)
+        self.dropout = dropout
+
+    def forward(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        if z.dim() == 2:
+            z = z[:, None, :].expand(-1, x.shape[1], -1)
+        inp = torch.cat([z, x], dim=-1)
+        h = inp
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            if i == self.skip:
+                h = torch.cat([h, inp], dim=-1)
+            h = layer(h)
+            if i < last:
+                h = F.dropout(F.relu(h), p=self.dropout, training=self.training)
+        return torch.tanh(h).squeeze(-1)
+
+
+def mlp(sizes: list[int]) -> nn.Sequential:
+    mods: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        mods.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            mods.append(nn.ReLU())
+    return nn.Sequential(*mods)
+
+
+class MSCEncoder(nn.Module):
+    """The posterior p(h | D) of equation 2, a diagonal Gaussian over the latent code.
+
+    Each point (x_n, y_n) -- position and normal -- goes through two per-point MLPs: f gives its
+    vote f_n for the code, g its precision. Equation 2 writes the precision as
+    sum_n (1/g_n^2 - 1/g_0^2) + 1/g_0^2, which goes negative whenever a point's 1/g_n^2 is below
+    the prior's. Here the per-point increment r_n = 1/g_n^2 - 1/g_0^2 is produced directly through
+    a softplus, so it is never negative, and the prior precision 1/g_0^2 is a learned positive
+    vector: the precision starts at the prior with no points and only grows as points are added,
+    so the variance shrinks like 1/N. The mean weights each vote by the point's full precision
+    1/g_n^2 = r_n + 1/g_0^2, as printed (``mean_weights="printed"``); ``"increment"`` weights by
+    r_n, the exact linear-Gaussian posterior. Sums make it order-invariant and accept any N.
+    """
+
+    def __init__(self, latent_dim: int, hidden: int = 512, layers: int = 3,
+                 mean_weights: str = "printed") -> None:  # fmt: skip
+        super().__init__()
+        sizes = [6] + [hidden] * layers
+        self.f = mlp([*sizes, latent_dim])
+        self.g = mlp([*sizes, latent_dim])
+        self.prior_precision_raw = nn.Parameter(torch.zeros(latent_dim))
+        if mean_weights not in ("printed", "increment"):
+            raise ValueError(f"mean_weights must be 'printed' or 'increment', got {mean_weights!r}")
+        self.mean_weights = mean_weights
+
+    def prior_precision(self) -> torch.Tensor:
+        return F.softplus(self.prior_precision_raw) + 1e-4
+
+    def forward(self, points: torch.Tensor, normals: torch.Tensor,
+                mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """``points``/``normals`` (B, N, 3), optional ``mask`` (B, N) of real points.
+
+        Returns the posterior mean and variance, each (B, d).
+        """
+        inp = torch.cat([points, normals], dim=-1)
+        f = self.f(inp)
+        r = F.softplus(self.g(inp))
+        if mask is not None:
+            r = r * mask[..., None]
+        p0 = self.prior_precision()
+        precision = p0 + r.sum(dim=1)
+        weights = r + p0 if self.mean_weights == "printed" else r
+        if mask is not None:
+            weights = weights * mask[..., None]
+        var = 1.0 / precision
+        mean = var * (f * weights).sum(dim=1)
+        return mean, var
