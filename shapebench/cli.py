@@ -187,6 +187,14 @@ def cli() -> None:
     default=None,
     help="Use this checkpoint instead of training (trainable methods).",
 )
+@click.option(
+    "--samples",
+    type=int,
+    default=None,
+    metavar="K",
+    help="Also draw K shapes from the posterior (methods with one, e.g. msc); they are logged "
+    "with a per-point spread.",
+)
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
 @plugin_options
@@ -200,6 +208,7 @@ def run(
     seeds,
     metrics,
     checkpoint,
+    samples,
     force,
     quiet,
     method_opts,
@@ -221,6 +230,7 @@ def run(
       shapebench run --method gauss --dataset synthetic
       shapebench run -m gauss -d synthetic --contexts 50,100 -O sigma=0.02 --quiet
       shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
+      shapebench run -m msc -d synthetic --samples 4   # posterior samples, trains first
     """
     from shapebench.orchestrate import EvalRequest, evaluate
     from shapebench.report import print_summary
@@ -232,7 +242,7 @@ def run(
         splits=splits.split(",") if splits else None,
         contexts=_int_list(contexts, "--contexts"),
         seeds=_int_list(seeds, "--seeds"),
-        method_opts=_parse(method_opts, "-O"),
+        method_opts=_parse(method_opts, "-O") | ({"posterior_samples": samples} if samples else {}),
         dataset_opts=_parse(dataset_opts, "-D"),
         data_root=data_root,
         metrics=list(metrics) or None,

@@ -179,7 +179,20 @@ def score(
         row[metric.name] = value
     for key, value in (outcome.info or {}).items():
         row[f"info.{key}"] = value
+    if outcome.samples:
+        spread = posterior_spread(outcome.points, outcome.samples)
+        outcome.cache["spread"] = spread
+        row["posterior_spread"] = float(spread.mean())
     return row, outcome
+
+
+def posterior_spread(points: np.ndarray, samples: list[np.ndarray]) -> np.ndarray:
+    """Per point of the completion, the RMS over posterior samples of the distance to the nearest
+    point of each sample: how uncertain the completion is there."""
+    from shapebench.geometry.nearest import nearest_distances
+
+    d = np.stack([nearest_distances(points, s) for s in samples if len(s)])
+    return np.sqrt((d**2).mean(axis=0)).astype(np.float32)
 
 
 def complete_chunk(method: Method, contexts: list[Context], n_points: int):
@@ -333,7 +346,7 @@ class Runner:
                         result, completion = score(output, data, ctx, plan.metrics)
                         row.update(result, seconds=seconds)
                         if completion is not None and len(examples) < EXAMPLE_PLYS:
-                            examples.append((ctx.ref.id, completion.points))
+                            examples.append((ctx.ref.id, completion))
                         bar.update()
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
@@ -391,6 +404,13 @@ class Runner:
             if examples:
                 ex_dir = tmpdir / "completions"
                 ex_dir.mkdir()
-                for obj, pts in examples:
-                    trimesh.PointCloud(pts).export(ex_dir / (obj.replace("/", "__") + ".ply"))
+                for obj, completion in examples:
+                    stem = obj.replace("/", "__")
+                    trimesh.PointCloud(completion.points).export(ex_dir / f"{stem}.ply")
+                    for j, sample in enumerate(completion.samples or []):
+                        trimesh.PointCloud(sample).export(ex_dir / f"{stem}.sample{j}.ply")
+                    if "spread" in completion.cache:
+                        np.savez_compressed(ex_dir / f"{stem}.spread.npz",
+                                            points=completion.points,
+                                            spread=completion.cache["spread"])  # fmt: skip
                 self.tracker.client.log_artifacts(run_id, str(ex_dir), "completions")

@@ -89,7 +89,7 @@ def train_here(
     instance = method.instantiate()
     try:
         path = instance.fit(
-            TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id)
+            TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id, quiet)
         )
     except BaseException:
         if tracker is not None:

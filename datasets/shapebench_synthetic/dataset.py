@@ -25,7 +25,8 @@ class SyntheticOptions(MeshOptions):
         default=2, metadata={"help": "test objects per category (raise it for a larger benchmark)"}
     )
     train_per_category: int = field(
-        default=8, metadata={"help": "training objects per trained category"}
+        default=8,
+        metadata={"help": "training objects per trained category", "training_only": True},
     )
 
 

@@ -1,0 +1,99 @@
+"""The pieces of IGR, DeepSDF and MSC that can fail silently."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from shapebench.implicit.completion import initial_latents, optimise_latents
+from shapebench.implicit.networks import DeepSDFDecoder, IGRDecoder, MSCEncoder
+from shapebench.types import Context, ObjectRef
+
+
+def _sphere(n: int, r: float = 0.5, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    v = torch.randn(n, 3, generator=g)
+    v = v / v.norm(dim=1, keepdim=True)
+    return r * v, v
+
+
+def test_geometric_initialisation_is_close_to_a_sphere_sdf():
+    # Random features make it approximate: f(x) ~ c ||x|| - 1 with c near 1, zero near r = 1.
+    torch.manual_seed(0)
+    decoder = IGRDecoder(latent_dim=16, width=512, depth=8, radius_init=1.0)
+    x = (torch.rand(1, 4000, 3) * 2 - 1) * 1.5
+    with torch.no_grad():
+        f = decoder(torch.zeros(1, 16), x)[0]
+    r = x[0].norm(dim=1)
+    slope = float(((f + 1) * r).sum() / (r * r).sum())
+    assert 0.85 < slope < 1.2
+    assert (f - (r - 1)).abs().mean() < 0.2
+    clear = (r - 1).abs() > 0.4
+    assert (torch.sign(f[clear]) == torch.sign(r[clear] - 1)).float().mean() > 0.97
+
+
+def test_decoders_take_the_latent_first_and_deepsdf_ends_in_tanh():
+    igr = IGRDecoder(latent_dim=8, width=64, depth=4)
+    assert igr.layers[0].in_features == 11 and igr.layers[igr.skip - 1].out_features == 64 - 11
+    deepsdf = DeepSDFDecoder(latent_dim=8, width=64, depth=4).eval()
+    x = torch.randn(2, 100, 3) * 10
+    out = deepsdf(torch.randn(2, 8), x)
+    assert out.shape == (2, 100) and out.abs().max() < 1.0
+
+
+def test_msc_posterior_variance_shrinks_as_points_are_added_and_ignores_order():
+    torch.manual_seed(1)
+    encoder = MSCEncoder(latent_dim=32, hidden=64, layers=2)
+    pts, nrm = _sphere(1000)
+    variances = []
+    for n in (0, 10, 50, 100, 300, 1000):
+        _, var = encoder(pts[None, :n], nrm[None, :n])
+        variances.append(var)
+    prior = 1.0 / encoder.prior_precision()
+    assert torch.allclose(variances[0][0], prior)  # no points: the prior
+    for fewer, more in zip(variances, variances[1:], strict=False):
+        assert (more <= fewer + 1e-7).all()  # never grows, in any dimension
+    assert (variances[-1] < 0.5 * variances[1]).all()  # and really shrinks
+    perm = torch.randperm(1000)
+    m1, v1 = encoder(pts[None], nrm[None])
+    m2, v2 = encoder(pts[None, perm], nrm[None, perm])
+    assert torch.allclose(m1, m2, atol=1e-5) and torch.allclose(v1, v2, atol=1e-7)
+    # The mask drops padded points exactly.
+    padded = torch.cat([pts[:100], torch.randn(20, 3)])[None]
+    pnrm = torch.cat([nrm[:100], torch.randn(20, 3)])[None]
+    mask = torch.cat([torch.ones(100), torch.zeros(20)])[None]
+    m3, v3 = encoder(padded, pnrm, mask)
+    m4, v4 = encoder(pts[None, :100], nrm[None, :100])
+    assert torch.allclose(m3, m4, atol=1e-5) and torch.allclose(v3, v4)
+
+
+@pytest.mark.parametrize("scale", [False, True])
+def test_latent_optimisation_lowers_the_context_loss(scale):
+    from shapebench_igr.module import IGRModule
+
+    torch.manual_seed(2)
+    module = IGRModule(n_shapes=1, latent_dim=16, width=64, depth=4, lr=1e-3, lr_halve_every=10,
+                       eikonal_weight=0.1, normal_weight=1.0, latent_reg=1e-3,
+                       offsurface="official")  # fmt: skip
+    for p in module.parameters():
+        p.requires_grad_(False)
+    pts = torch.stack([_sphere(200, 0.4, seed=s)[0] for s in (3, 4)])  # two objects
+    ctxs = [Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=i)
+            for i in range(2)]  # fmt: skip
+    z0 = initial_latents(ctxs, 16, 0.01, torch.device("cpu"))
+    loss = module.completion_loss(pts, None)
+    lr = 0.5 if scale else 5e-2  # "lr x error_0" needs a larger base step for the same effect
+    z, history = optimise_latents(loss, z0, steps=60, lr=lr, scale_by_initial_loss=scale)
+    assert history[-1] < 0.8 * history[0]
+    assert not torch.equal(z, z0)
+    torch.manual_seed(5)
+    assert loss(z).mean() < loss(z0).mean()
+
+
+def test_initial_latents_are_seeded_per_object():
+    ctxs = [Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=s)
+            for i, s in enumerate((7, 8, 7))]  # fmt: skip
+    z = initial_latents(ctxs, 64, 0.01, torch.device("cpu"))
+    assert torch.equal(z[0], z[2]) and not torch.equal(z[0], z[1])
+    assert 0.005 < float(z.std()) < 0.02
