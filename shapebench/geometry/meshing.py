@@ -39,6 +39,9 @@ the mesh stays closed.)
 Output: a :class:`trimesh.Trimesh` in world coordinates with outward-facing faces (normals point
 toward increasing ``g``, i.e. outside). It is watertight where the surface is closed inside the
 box; a surface that leaves the box is cut open there.
+
+Memory: the evaluated values and the filled volume are ``(resolution + 1)^3`` float32 arrays
+(68 MB each at 256, 540 MB at 512); the bookkeeping around them is about 1 s at 256.
 """
 
 from __future__ import annotations
