@@ -287,8 +287,15 @@ def sweep(sweep_file, force, quiet, profile, tracking_uri, cache_dir, workspace,
 
     spec = load_sweep(Path(sweep_file))
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
+
+    def report(method: str, dataset: str, exc: ShapebenchError) -> None:
+        click.secho(f"Error: {method} on {dataset}: {exc.message}", fg="red", err=True)
+        if exc.hint:
+            click.echo(f"  hint: {exc.hint}", err=True)
+        click.echo("  continuing with the rest of the sweep", err=True)
+
     for outcome in run_sweep(
-        spec, settings, force, quiet, lambda seed: _trainer(settings, seed, **trainer)
+        spec, settings, force, quiet, lambda seed: _trainer(settings, seed, **trainer), report
     ):
         print_summary(outcome, settings)
 

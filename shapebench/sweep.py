@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from shapebench.config import Settings, read_yaml
-from shapebench.errors import ConfigError
+from shapebench.errors import ConfigError, ShapebenchError
 from shapebench.method import TrainerOptions
 from shapebench.orchestrate import EvalOutcome, EvalRequest, evaluate
 from shapebench.registry import get_registry
@@ -97,6 +97,7 @@ def run_sweep(
     force: bool,
     quiet: bool,
     trainer_for_seed: Callable[[int], TrainerOptions],
+    on_error: Callable[[str, str, ShapebenchError], None] | None = None,
 ) -> Iterator[EvalOutcome]:
     methods = spec.methods
     if methods == "all":
@@ -107,23 +108,34 @@ def run_sweep(
     for ds in spec.datasets:
         registry.get("dataset", ds.name)
     tracker = Tracker(settings)  # so does an unreachable server
+    failures: list[str] = []
     for ds in spec.datasets:
         for m in methods:
-            yield evaluate(
-                EvalRequest(
-                    method=m.name,
-                    dataset=ds.name,
-                    splits=spec.splits,
-                    contexts=spec.contexts,
-                    seeds=spec.seeds,
-                    method_opts=m.options,
-                    dataset_opts=ds.options,
-                    data_root=ds.data_root,
-                    metrics=spec.metrics,
-                    force=force,
-                    quiet=quiet,
-                ),
-                settings,
-                trainer_for_seed,
-                tracker,
-            )
+            try:
+                yield evaluate(
+                    EvalRequest(
+                        method=m.name,
+                        dataset=ds.name,
+                        splits=spec.splits,
+                        contexts=spec.contexts,
+                        seeds=spec.seeds,
+                        method_opts=m.options,
+                        dataset_opts=ds.options,
+                        data_root=ds.data_root,
+                        metrics=spec.metrics,
+                        force=force,
+                        quiet=quiet,
+                    ),
+                    settings,
+                    trainer_for_seed,
+                    tracker,
+                )
+            except ShapebenchError as exc:  # one method failing must not stop the others
+                failures.append(f"{m.name} on {ds.name}: {exc.message}")
+                if on_error is not None:
+                    on_error(m.name, ds.name, exc)
+    if failures:
+        raise ShapebenchError(
+            f"{len(failures)} of the sweep's method x dataset runs failed: " + "; ".join(failures),
+            "the other cells finished and are kept; fix the cause and rerun the same command",
+        )

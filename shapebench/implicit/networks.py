@@ -20,12 +20,24 @@ from torch.nn import functional as F
 
 
 def _dims(in_dim: int, width: int, depth: int, skip: int) -> list[tuple[int, int]]:
-    """(in, out) of each linear layer; the layer before the skip leaves room for the input."""
-    dims = [in_dim] + [width] * depth + [1]
+    """(in, out) of each linear layer, the skip concatenation included.
+
+    As in IGR and DeepSDF, the layer before the skip outputs ``width - in_dim`` so that the
+    concatenation with the input is ``width`` wide. When the input is wider than the layers (MSC's
+    1024-d code with 512-wide layers, which that design cannot fit), the layer before the skip
+    keeps its full width and the layer after it takes ``width + in_dim`` inputs instead.
+    """
+    fits = width > in_dim
     layers = []
-    for i in range(len(dims) - 1):
-        out = dims[i + 1] - in_dim if i + 1 == skip else dims[i + 1]
-        layers.append((dims[i], out))
+    prev = in_dim
+    for i in range(depth + 1):
+        out = 1 if i == depth else width
+        if i + 1 == skip and fits:
+            out = width - in_dim
+        layers.append((prev, out))
+        prev = out
+        if i + 1 == skip:
+            prev = out + in_dim
     return layers
 
 

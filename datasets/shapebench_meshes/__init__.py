@@ -1,0 +1,1 @@
+"""The ``meshes`` dataset: any folder of mesh files becomes a benchmark, sub-folders categories."""

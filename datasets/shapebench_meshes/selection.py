@@ -1,0 +1,31 @@
+"""Deterministic train/test selection of objects, shared by the file-based datasets.
+
+Objects are ranked by a hash of (seed, object id) rather than shuffled as a list, so that adding
+or removing one file moves only that file: every other object stays on its side of the split.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from shapebench.hashing import stable_seed
+
+
+def hash_order(ids: Iterable[str], seed: int, salt: str) -> list[str]:
+    """``ids`` in a pseudo-random order that depends only on (salt, seed, id)."""
+    return sorted(ids, key=lambda i: (stable_seed(salt, seed, i), i))
+
+
+def split_ids(
+    ids: Iterable[str], fraction: float, seed: int, salt: str
+) -> tuple[list[str], list[str]]:
+    """``(picked, rest)``: ``round(fraction * n)`` ids picked by hash rank, both sorted.
+
+    With a fraction strictly between 0 and 1 and at least two ids, both sides get one or more.
+    """
+    ordered = hash_order(ids, seed, salt)
+    n = len(ordered)
+    k = round(fraction * n)
+    if 0 < fraction < 1 and n >= 2:
+        k = min(max(k, 1), n - 1)
+    return sorted(ordered[:k]), sorted(ordered[k:])

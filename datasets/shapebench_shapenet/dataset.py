@@ -1,0 +1,151 @@
+"""The ``shapenet`` dataset: ShapeNetCore v1 or v2 from a local copy, split as in the paper.
+
+Categories and their trained/novel split are the paper's (Tables 1 and 2, from
+:mod:`shapebench_shapenet.catalog`); the models of each category are split into training and
+test models either by hash of (seed, model id) with ``test_fraction`` of them for testing, or by
+the user's split files (``split_dir``, see :mod:`shapebench_shapenet.splits`). Novel categories
+are split the same way and only their test models are evaluated, so a category's test set does
+not depend on whether it is trained or novel.
+
+Meshes are read per model from whichever layout the folder has (v1 ``model.obj`` or v2
+``models/model_normalized.obj``) and preprocessed like every mesh dataset (the paper's §4.1):
+normals of visible points are oriented towards the viewpoint that sees them, which repairs
+ShapeNet's flipped faces, and SDF samples of non-watertight meshes take their sign from a vote of
+the nearest surface normals (:mod:`shapebench.preprocess.samples`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar
+
+from shapebench_meshes.loading import load_mesh_file
+from shapebench_meshes.selection import hash_order, split_ids
+
+from shapebench.dataset import MeshDataset, MeshOptions, ObjectLoadError
+from shapebench.errors import ConfigError
+from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
+from shapebench_shapenet import catalog, layout
+from shapebench_shapenet.splits import read_split_dir
+
+
+@dataclass(frozen=True)
+class ShapeNetOptions(MeshOptions):
+    categories: list[str] = field(
+        default_factory=list,
+        metadata={
+            "help": "categories to use, by paper name, ShapeNet name or synset id, e.g. "
+            "-D 'categories=[Chair, Bus]' (default: every category present)"
+        },
+    )
+    test_fraction: float = field(
+        default=0.2, metadata={"help": "fraction of each category's models kept for testing"}
+    )
+    split_dir: str | None = field(
+        default=None,
+        metadata={
+            "help": "folder with test.txt|json (and train.txt|json) listing <synset>/<model> "
+            "ids, replacing the test_fraction split (DeepSDF split files work as they are)"
+        },
+    )
+    max_test_per_category: int = field(
+        default=0,
+        metadata={"help": "evaluate at most this many test models per category (0: all)"},
+    )
+
+
+class ShapeNetDataset(MeshDataset):
+    name = "shapenet"
+    display_name = "ShapeNet"
+    description = (
+        "ShapeNetCore v1/v2 from a local copy: the paper's 40 trained and 15 novel categories"
+    )
+    Options: ClassVar[type] = ShapeNetOptions
+    provides = frozenset(
+        {Supervision.SURFACE_POINTS, Supervision.SDF_SAMPLES, Supervision.COMPLETE_POINTS}
+    )
+    needs_data_root = True
+    obtain_hint: ClassVar[str] = layout.OBTAIN
+
+    def __init__(self, options, cache_dir, data_root=None) -> None:
+        super().__init__(options, cache_dir, data_root)
+        if not 0.0 < options.test_fraction <= 1.0:
+            raise ConfigError(
+                f"test_fraction must be in (0, 1], got {options.test_fraction}",
+                "e.g. -D test_fraction=0.2 (the remaining 80% are training models)",
+            )
+        if options.max_test_per_category < 0:
+            raise ConfigError("max_test_per_category must be >= 0 (0 means no limit)")
+        self.selected = catalog.resolve(list(options.categories))
+        self._models: dict[str, list[layout.Model]] | None = None
+        self._table: dict[str, list[ObjectRef]] | None = None
+        self._version: str | None = None
+
+    @property
+    def models(self) -> dict[str, list[layout.Model]]:
+        """Synset -> models on disk, for the selected categories (scanned once)."""
+        if self._models is None:
+            required = bool(self.options.categories)
+            self._models = layout.scan(self.data_root, self.selected, required)
+        return self._models
+
+    @property
+    def version(self) -> str:
+        # v1 and v2 meshes of a model differ (v2 is re-oriented and repaired): never share a cache.
+        if self._version is None:
+            layouts = sorted({m.layout for models in self.models.values() for m in models})
+            self._version = f"shapenet-{'+'.join(layouts)}-prep1"
+        return self._version
+
+    def categories(self) -> list[Category]:
+        return [Category(c.name, c.split) for c in self.selected if c.synset in self.models]
+
+    def objects(self, split: str) -> list[ObjectRef]:
+        if split not in (TRAIN, TRAINED, NOVEL):
+            raise ValueError(f"unknown split {split!r}; use train, trained or novel")
+        if self._table is None:
+            self._table = self._split_table()
+        return list(self._table[split])
+
+    def _split_table(self) -> dict[str, list[ObjectRef]]:
+        o = self.options
+        user = read_split_dir(o.split_dir) if o.split_dir else None
+        table: dict[str, list[ObjectRef]] = {TRAIN: [], TRAINED: [], NOVEL: []}
+        listed_missing = 0
+        for cat in self.selected:
+            ids = [m.id for m in self.models.get(cat.synset, [])]
+            if user is not None:
+                on_disk = set(ids)
+                test = sorted(i for i in user["test"] if i.startswith(cat.synset + "/"))
+                train = sorted(i for i in user["train"] if i.startswith(cat.synset + "/"))
+                listed_missing += sum(i not in on_disk for i in test + train)
+                test = [i for i in test if i in on_disk]
+                train = [i for i in train if i in on_disk]
+            else:
+                test, train = split_ids(ids, o.test_fraction, o.seed, "shapenet")
+            if o.max_test_per_category:
+                test = sorted(hash_order(test, o.seed, "shapenet-cap")[: o.max_test_per_category])
+            if cat.split == TRAINED:
+                table[TRAIN] += [ObjectRef(i, cat.name) for i in train]
+                table[TRAINED] += [ObjectRef(i, cat.name) for i in test]
+            else:  # training models of novel categories are never used
+                table[NOVEL] += [ObjectRef(i, cat.name) for i in test]
+        if listed_missing:
+            warnings.warn(
+                f"{listed_missing} model(s) listed in {o.split_dir} are not under "
+                f"{self.data_root}; they are left out",
+                stacklevel=2,
+            )
+        return table
+
+    def mesh(self, ref: ObjectRef):
+        synset, _, model = ref.id.partition("/")
+        found = layout.model_file(Path(self.data_root), synset, model) if self.data_root else None
+        if found is None:
+            raise ObjectLoadError(
+                f"ShapeNet model {ref.id} has neither {layout.V1_FILE} nor {layout.V2_FILE} "
+                f"under {self.data_root}"
+            )
+        return load_mesh_file(found[0])
