@@ -24,7 +24,12 @@ import numpy as np
 
 from shapebench.hashing import stable_hash, stable_seed
 from shapebench.options import NoOptions
-from shapebench.preprocess import PreprocessError, PreprocessParams, prepare_mesh
+from shapebench.preprocess import (
+    PREPROCESS_VERSION,
+    PreprocessError,
+    PreprocessParams,
+    prepare_mesh,
+)
 from shapebench.types import EVAL_SPLITS, Category, ObjectData, ObjectRef, Supervision
 
 
@@ -61,38 +66,31 @@ class Dataset(ABC):
         """The data/protocol version; change it whenever the produced arrays change."""
         return "1"
 
-    def fingerprint(self) -> str:
-        """Identifies the evaluation data (cache keys, context draws, cell keys, run tags).
+    def identity(self, training: bool) -> dict[str, Any]:
+        """What the produced data depends on; hashed into the fingerprints.
 
-        Options marked ``metadata={"training_only": True}`` (sizes of training samples) are left
-        out, so changing them retrains methods but never changes test objects or contexts.
+        Options marked ``metadata={"training_only": True}`` (sizes of training samples, training
+        objects) count only for ``training=True``, so changing them retrains methods but never
+        changes test objects or contexts. Override to add what options cannot show (the contents
+        of a user's split files, a preprocessing version).
         """
-        return stable_hash(
-            {
-                "name": self.name,
-                "version": self.version,
-                "options": _options(self.options, training=False),
-            }
-        )
-
-    def config(self) -> dict[str, Any]:
-        """What identifies the evaluation data, for run params and cell keys."""
         return {
             "name": self.name,
             "version": self.version,
-            "fingerprint": self.fingerprint(),
-            "options": _options(self.options, training=False),
+            "options": _options(self.options, training),
         }
+
+    def fingerprint(self) -> str:
+        """Identifies the evaluation data (cache keys, context draws, cell keys, run tags)."""
+        return stable_hash(self.identity(training=False))
+
+    def config(self) -> dict[str, Any]:
+        """What identifies the evaluation data, for run params and cell keys."""
+        return {**self.identity(training=False), "fingerprint": self.fingerprint()}
 
     def training_fingerprint(self) -> str:
         """Identifies everything training sees (checkpoint keys)."""
-        return stable_hash(
-            {
-                "name": self.name,
-                "version": self.version,
-                "options": _options(self.options, training=True),
-            }
-        )
+        return stable_hash(self.identity(training=True))
 
     @abstractmethod
     def categories(self) -> list[Category]:
@@ -167,6 +165,9 @@ class MeshDataset(Dataset):
 
     def max_context_size(self) -> int | None:
         return self.options.surface_candidates
+
+    def identity(self, training: bool) -> dict[str, Any]:
+        return {**super().identity(training), "preprocess": PREPROCESS_VERSION}
 
     def preprocess_params(self) -> PreprocessParams:
         o = self.options

@@ -211,6 +211,7 @@ def _pool_pass(
     running: dict[Future, ObjectRef] = {}
     broken = False
     try:
+        _wait_until_ready(pool, dataset)
         while (queue or running) and not broken:
             while queue and len(running) < jobs:
                 ref = queue.pop()
@@ -230,6 +231,22 @@ def _pool_pass(
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+def _ready() -> bool:
+    return _WORKER_DATASET is not None
+
+
+def _wait_until_ready(pool: ProcessPoolExecutor, dataset: Dataset) -> None:
+    """Fail at once, not once per object, when workers cannot even start (the dataset's class
+    cannot be imported in a fresh interpreter, or unpickling it fails there)."""
+    try:
+        pool.submit(_ready).result()
+    except BrokenProcessPool as exc:
+        raise ShapebenchError(
+            f"worker processes cannot load dataset {dataset.name!r} (see the error above)",
+            "prepare it with --jobs 1; the dataset class must be importable by module path",
+        ) from exc
 
 
 def _check_picklable(dataset: Dataset) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import pickle
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from shapebench_shapenet.dataset import ShapeNetDataset, ShapeNetOptions  # noqa
 from shapebench_synthetic.dataset import SyntheticDataset, SyntheticOptions  # noqa: E402
 
 from shapebench.dataset import ObjectLoadError  # noqa: E402
-from shapebench.errors import ConfigError  # noqa: E402
+from shapebench.errors import ConfigError, ShapebenchError  # noqa: E402
 from shapebench.prepare import prepare  # noqa: E402
 from shapebench.types import NOVEL, TRAIN, TRAINED  # noqa: E402
 
@@ -130,3 +131,17 @@ def test_every_builtin_dataset_pickles(tmp_path):
     for ds in datasets:
         clone = pickle.loads(pickle.dumps(ds))
         assert type(clone) is type(ds) and clone.options == ds.options
+
+
+def test_workers_that_cannot_start_stop_prepare_at_once(tmp_path, monkeypatch):
+    """A dataset class that only exists in this process cannot be rebuilt by a worker."""
+    module = types.ModuleType("shapebench_test_only_here")
+    ns = {"MeshFolderDataset": MeshFolderDataset}
+    exec("class Here(MeshFolderDataset):\n    pass\n", ns)
+    module.Here = ns["Here"]
+    ns["Here"].__module__ = module.__name__
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    ds = module.Here(TINY, tmp_path / "cache", make_meshes(tmp_path / "data"))
+    with pytest.raises(ShapebenchError, match="cannot load dataset") as err:
+        prepare(ds, [NOVEL], frozenset(), jobs=2, quiet=True)
+    assert "--jobs 1" in str(err.value)

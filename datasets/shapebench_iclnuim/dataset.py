@@ -94,7 +94,9 @@ class ICLNUIMDataset(Dataset):
             root = self.data_root
             if root is None or not Path(root).is_dir():
                 raise DataNotFoundError(
-                    f"ICL-NUIM data root {root} does not exist" if root else "no ICL-NUIM root",
+                    f"ICL-NUIM data root {root} does not exist"
+                    if root
+                    else "dataset 'icl-nuim' needs a local copy of ICL-NUIM",
                     OBTAIN,
                 )
             found = discover(Path(root))

@@ -26,6 +26,7 @@ from shapebench_meshes.selection import hash_order, split_ids
 
 from shapebench.dataset import MeshDataset, MeshOptions, ObjectLoadError
 from shapebench.errors import ConfigError
+from shapebench.hashing import stable_hash
 from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench_shapenet import catalog, layout
 from shapebench_shapenet.splits import read_split_dir
@@ -82,6 +83,7 @@ class ShapeNetDataset(MeshDataset):
         self._models: dict[str, list[layout.Model]] | None = None
         self._table: dict[str, list[ObjectRef]] | None = None
         self._version: str | None = None
+        self._user_splits: dict[str, set[str]] | None = None
 
     @property
     def models(self) -> dict[str, list[layout.Model]]:
@@ -97,7 +99,17 @@ class ShapeNetDataset(MeshDataset):
         if self._version is None:
             layouts = sorted({m.layout for models in self.models.values() for m in models})
             self._version = f"shapenet-{'+'.join(layouts)}-prep1"
+            if self.user_splits is not None:  # edited split files at one path are new test sets
+                listed = {k: sorted(v) for k, v in self.user_splits.items()}
+                self._version += f"-split{stable_hash(listed)}"
         return self._version
+
+    @property
+    def user_splits(self) -> dict[str, set[str]] | None:
+        """The split files' ids (read once, so the listing and the version agree), or None."""
+        if self.options.split_dir and self._user_splits is None:
+            self._user_splits = read_split_dir(self.options.split_dir)
+        return self._user_splits
 
     def categories(self) -> list[Category]:
         return [Category(c.name, c.split) for c in self.selected if c.synset in self.models]
@@ -111,7 +123,7 @@ class ShapeNetDataset(MeshDataset):
 
     def _split_table(self) -> dict[str, list[ObjectRef]]:
         o = self.options
-        user = read_split_dir(o.split_dir) if o.split_dir else None
+        user = self.user_splits
         table: dict[str, list[ObjectRef]] = {TRAIN: [], TRAINED: [], NOVEL: []}
         listed_missing = 0
         for cat in self.selected:

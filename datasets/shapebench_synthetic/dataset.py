@@ -44,7 +44,7 @@ class SyntheticDataset(MeshDataset):
     def version(self) -> str:
         # The meshes are byte-identical only for one manifold3d release (its boolean output can
         # change between versions), so its version is part of the data version.
-        return f"gen{shapes.GENERATOR_VERSION}-manifold{version('manifold3d')}-prep1"
+        return f"gen{shapes.GENERATOR_VERSION}-manifold{version('manifold3d')}"
 
     def categories(self) -> list[Category]:
         return [Category(name, fam.split) for name, fam in shapes.CATEGORIES.items()]

@@ -44,6 +44,8 @@ class MSCOptions(DecoderOptions):
         metadata={"help": "posterior mean weights: 'printed' (eq. 2, 1/g_n^2) or 'increment'"},
     )
     max_target: int = field(default=5000, metadata={"help": "largest target subset (paper: 5000)"})
+    sigma_init: float = field(default=0.1, metadata={"help": "initial decoder noise sigma"})
+    sigma_min: float = field(default=0.01, metadata={"help": "lower bound of the learned sigma"})
     opt_steps: int = _c(200, "post-encoder optimisation steps (msc only; not in the paper)")
     opt_lr: float = _c(5e-3, "post-encoder optimisation Adam step (msc only)")
     posterior_samples: int = _c(0, "also decode this many posterior samples per object")
@@ -81,7 +83,8 @@ class MSCNoOpt(ImplicitMethod):
                            encoder_width=o.encoder_width, encoder_layers=o.encoder_layers,
                            mean_weights=o.mean_weights, lr=o.lr, lr_halve_every=o.lr_halve_every,
                            eikonal_weight=o.eikonal_weight, normal_weight=o.normal_weight,
-                           offsurface=o.offsurface, max_target=o.max_target)  # fmt: skip
+                           offsurface=o.offsurface, max_target=o.max_target,
+                           sigma_init=o.sigma_init, sigma_min=o.sigma_min)  # fmt: skip
 
     def posterior(self, contexts: list[Context]):
         from shapebench.implicit.completion import stack_contexts

@@ -18,8 +18,6 @@ from shapebench.implicit.losses import (
 )
 from shapebench.implicit.networks import IGRDecoder, MSCEncoder
 
-LOG_SIGMA_MIN = math.log(1e-4)
-
 
 class MSCModule(pl.LightningModule):
     def __init__(
@@ -36,19 +34,27 @@ class MSCModule(pl.LightningModule):
         normal_weight: float,
         offsurface: str,
         max_target: int,
+        sigma_init: float = 0.1,
+        sigma_min: float = 0.01,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.encoder = MSCEncoder(latent_dim, encoder_width, encoder_layers, mean_weights)
         self.decoder = IGRDecoder(latent_dim, width, depth)
-        self.log_sigma = nn.Parameter(torch.tensor(math.log(0.01)))  # decoder noise, learned
+        # The decoder's noise sigma_theta is learned, from sigma_init down to at most sigma_min: a
+        # sigma far below the fit's residuals makes the likelihood outweigh the Eikonal term by
+        # orders of magnitude, and the decoder then collapses to a flat function.
+        self.log_sigma = nn.Parameter(torch.tensor(math.log(sigma_init)))
+
+    def _log_sigma(self) -> torch.Tensor:
+        return self.log_sigma.clamp(min=math.log(self.hparams.sigma_min))
 
     def sigma(self) -> torch.Tensor:
-        return self.log_sigma.clamp(min=LOG_SIGMA_MIN).exp()
+        return self._log_sigma().exp()
 
     def nll(self, f: torch.Tensor) -> torch.Tensor:
         """-log N(0 | f, sigma^2) per point (every observed point lies on the surface, s = 0)."""
-        log_sigma = self.log_sigma.clamp(min=LOG_SIGMA_MIN)
+        log_sigma = self._log_sigma()
         return 0.5 * (f / log_sigma.exp()) ** 2 + log_sigma + 0.5 * math.log(2 * math.pi)
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:

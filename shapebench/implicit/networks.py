@@ -152,6 +152,10 @@ class MSCEncoder(nn.Module):
         self.f = mlp([*sizes, latent_dim])
         self.g = mlp([*sizes, latent_dim])
         self.prior_precision_raw = nn.Parameter(torch.zeros(latent_dim))
+        # The votes start at zero, so the first codes are the prior mean 0 and the decoder starts
+        # from its geometric initialisation (a sphere), as IGR's zero-initialised codes do.
+        nn.init.zeros_(self.f[-1].weight)
+        nn.init.zeros_(self.f[-1].bias)
         if mean_weights not in ("printed", "increment"):
             raise ValueError(f"mean_weights must be 'printed' or 'increment', got {mean_weights!r}")
         self.mean_weights = mean_weights

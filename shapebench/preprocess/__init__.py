@@ -6,6 +6,11 @@
 3. ground truth: points sampled area-weighted over the whole mesh.
 """
 
-from shapebench.preprocess.pipeline import PreprocessError, PreprocessParams, prepare_mesh
+from shapebench.preprocess.pipeline import (
+    PREPROCESS_VERSION,
+    PreprocessError,
+    PreprocessParams,
+    prepare_mesh,
+)
 
-__all__ = ["PreprocessError", "PreprocessParams", "prepare_mesh"]
+__all__ = ["PREPROCESS_VERSION", "PreprocessError", "PreprocessParams", "prepare_mesh"]

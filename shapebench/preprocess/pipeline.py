@@ -11,6 +11,10 @@ from shapebench.geometry.sampling import sample_surface
 from shapebench.preprocess.normalize import normalize
 from shapebench.preprocess.visibility import visible_points
 
+#: Bump whenever the arrays produced from the same mesh change: it is part of every mesh
+#: dataset's fingerprint, so old caches and old contexts are never mixed with new ones.
+PREPROCESS_VERSION = "2"
+
 
 class PreprocessError(ValueError):
     """The mesh cannot be turned into benchmark data (empty, degenerate, never visible...)."""

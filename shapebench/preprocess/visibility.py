@@ -51,9 +51,10 @@ def visible_points(
             break
         direction = view - points[pending]
         direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-        # Start on the side of the surface facing the view, so the ray does not re-hit its face.
+        # Start just off the surface, on the side facing the view, so the ray cannot re-hit its own
+        # face; moving along the view direction too could cross into a neighbouring face at edges.
         side = np.sign(np.einsum("ij,ij->i", normals[pending], direction))[:, None]
-        origin = points[pending] + RAY_OFFSET * (direction + side * normals[pending])
+        origin = points[pending] + RAY_OFFSET * side * normals[pending]
         blocked = intersector.intersects_any(origin, direction)
         free = pending[~blocked]
         seen_from[free] = v
