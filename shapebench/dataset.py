@@ -109,6 +109,15 @@ class Dataset(ABC):
         x, y, z, sdf) for SDF_SAMPLES, ``"complete_points"`` for COMPLETE_POINTS.
         """
 
+    @property
+    def cache_root(self) -> Path:
+        """Where this exact data version's arrays are cached."""
+        return self.cache_dir / self.name / self.fingerprint()
+
+    def cache_path(self, ref: ObjectRef) -> Path:
+        """The cached arrays of one object (written atomically by :func:`save_npz_atomic`)."""
+        return self.cache_root / "objects" / (ref.id.replace("/", "__") + ".npz")
+
     def max_context_size(self) -> int | None:
         """An upper bound on any object's visible points, known without loading (or None)."""
         return None
@@ -174,13 +183,6 @@ class MeshDataset(Dataset):
         return PreprocessParams(
             surface_candidates=o.surface_candidates, gt_points=o.gt_points, viewpoints=o.viewpoints
         )
-
-    @property
-    def cache_root(self) -> Path:
-        return self.cache_dir / self.name / self.fingerprint()
-
-    def cache_path(self, ref: ObjectRef) -> Path:
-        return self.cache_root / "objects" / (ref.id.replace("/", "__") + ".npz")
 
     def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
         path = self.cache_path(ref)

@@ -127,6 +127,15 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     return last
 
 
+def adam_halving(params, lr: float, every: int) -> dict:
+    """Adam whose learning rates halve every ``every`` epochs (IGR's, DeepSDF's and the paper's
+    schedule), in the form ``configure_optimizers`` returns. ``params`` may be parameter groups
+    with their own ``lr``."""
+    opt = torch.optim.Adam(params, lr=lr)
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=every, gamma=0.5)
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+
+
 def device() -> torch.device:
     """Where completion runs: the GPU when there is one."""
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")

@@ -238,9 +238,7 @@ class Runner:
         sizes = validate_contexts(plan.contexts)
         results: list[CellResult] = []
         cache = ObjectCache(plan.dataset)
-        store = ContextStore(
-            getattr(plan.dataset, "cache_root", plan.dataset.cache_dir), plan.dataset.fingerprint()
-        )
+        store = ContextStore(plan.dataset.cache_root, plan.dataset.fingerprint())
         for split in plan.splits:
             refs = plan.dataset.objects(split)
             if not refs:

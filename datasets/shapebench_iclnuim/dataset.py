@@ -131,13 +131,6 @@ class ICLNUIMDataset(Dataset):
 
     # ------------------------------------------------------------------ arrays
 
-    @property
-    def cache_root(self) -> Path:
-        return self.cache_dir / self.name / self.fingerprint()
-
-    def cache_path(self, ref: ObjectRef) -> Path:
-        return self.cache_root / "objects" / (ref.id.replace("/", "__") + ".npz")
-
     def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
         """The scene's arrays (``need`` is ignored: scenes only have surface points)."""
         path = self.cache_path(ref)

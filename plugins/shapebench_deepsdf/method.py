@@ -77,13 +77,6 @@ class DeepSDF(ImplicitMethod):
 
         return DeepSDFModule
 
-    def data_module(self, ctx):
-        from shapebench.lightning_fit import ShapeDataModule
-
-        o = self.options
-        return ShapeDataModule(ctx.dataset, self.supervision, 1, o.batch_shapes,
-                               sdf_points=o.sdf_points, quiet=ctx.quiet)  # fmt: skip
-
     def build_module(self, n_shapes: int):
         o = self.options
         return self.Module(n_shapes=n_shapes, latent_dim=o.latent_dim, width=o.width,

@@ -11,6 +11,7 @@ from torch import nn
 
 from shapebench.implicit.losses import clamped_l1
 from shapebench.implicit.networks import DeepSDFDecoder
+from shapebench.lightning_fit import adam_halving
 
 
 class DeepSDFModule(pl.LightningModule):
@@ -47,12 +48,11 @@ class DeepSDFModule(pl.LightningModule):
 
     def configure_optimizers(self):
         h = self.hparams
-        opt = torch.optim.Adam([
+        groups = [
             {"params": self.decoder.parameters(), "lr": h.lr},
             {"params": self.latents.parameters(), "lr": h.latent_lr},
-        ])  # fmt: skip
-        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=h.lr_halve_every, gamma=0.5)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+        ]
+        return adam_halving(groups, h.lr, h.lr_halve_every)
 
     def completion_loss(self, points: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         """Only the context points, with SDF 0, and 1e-4 * mean(z^2) (``reconstruct.py``'s

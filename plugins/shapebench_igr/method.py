@@ -59,14 +59,6 @@ class IGR(ImplicitMethod):
 
         return IGRModule
 
-    def data_module(self, ctx):
-        from shapebench.lightning_fit import ShapeDataModule
-
-        o = self.options
-        return ShapeDataModule(
-            ctx.dataset, self.supervision, o.surface_points, o.batch_shapes, quiet=ctx.quiet
-        )
-
     def build_module(self, n_shapes: int):
         o = self.options
         return self.Module(n_shapes=n_shapes, latent_dim=o.latent_dim, width=o.width,

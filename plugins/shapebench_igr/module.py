@@ -10,6 +10,7 @@ from torch import nn
 
 from shapebench.implicit.losses import eikonal, gradient, normal_term, offsurface_samples
 from shapebench.implicit.networks import IGRDecoder
+from shapebench.lightning_fit import adam_halving
 
 
 def surface_losses(
@@ -54,10 +55,7 @@ class IGRModule(pl.LightningModule):
         return loss
 
     def configure_optimizers(self):
-        h = self.hparams
-        opt = torch.optim.Adam(self.parameters(), lr=h.lr)
-        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=h.lr_halve_every, gamma=0.5)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+        return adam_halving(self.parameters(), self.hparams.lr, self.hparams.lr_halve_every)
 
     def completion_loss(
         self, points: torch.Tensor, normals: torch.Tensor | None

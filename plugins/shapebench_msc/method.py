@@ -69,14 +69,6 @@ class MSCNoOpt(ImplicitMethod):
 
         return MSCModule
 
-    def data_module(self, ctx):
-        from shapebench.lightning_fit import ShapeDataModule
-
-        o = self.options
-        return ShapeDataModule(
-            ctx.dataset, self.supervision, o.surface_points, o.batch_shapes, quiet=ctx.quiet
-        )
-
     def build_module(self, n_shapes: int):
         o = self.options
         return self.Module(latent_dim=o.latent_dim, width=o.width, depth=o.depth,

@@ -17,6 +17,7 @@ from shapebench.implicit.losses import (
     offsurface_samples,  # fmt: skip
 )
 from shapebench.implicit.networks import IGRDecoder, MSCEncoder
+from shapebench.lightning_fit import adam_halving
 
 
 class MSCModule(pl.LightningModule):
@@ -88,10 +89,7 @@ class MSCModule(pl.LightningModule):
         return loss
 
     def configure_optimizers(self):
-        h = self.hparams
-        opt = torch.optim.Adam(self.parameters(), lr=h.lr)
-        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=h.lr_halve_every, gamma=0.5)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+        return adam_halving(self.parameters(), self.hparams.lr, self.hparams.lr_halve_every)
 
     def context_nll(self, points: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         """Equation 6's objective: the negative log-likelihood of the context points."""

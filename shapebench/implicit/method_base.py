@@ -25,9 +25,16 @@ class ImplicitMethod(Method):
         super().__init__(options)
         self.module = None
 
-    @abstractmethod
     def data_module(self, ctx: TrainingContext):
-        """The ShapeDataModule this method trains on."""
+        """The training split as batches of ``batch_shapes`` objects, each with
+        ``surface_points`` surface points and ``sdf_points`` SDF samples (options the method may
+        have)."""
+        from shapebench.lightning_fit import ShapeDataModule
+
+        o = self.options
+        return ShapeDataModule(ctx.dataset, self.supervision, getattr(o, "surface_points", 1),
+                               o.batch_shapes, sdf_points=getattr(o, "sdf_points", 0),
+                               quiet=ctx.quiet)  # fmt: skip
 
     @abstractmethod
     def build_module(self, n_shapes: int):

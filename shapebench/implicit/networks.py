@@ -41,8 +41,42 @@ def _dims(in_dim: int, width: int, depth: int, skip: int) -> list[tuple[int, int
     return layers
 
 
-class IGRDecoder(nn.Module):
-    """f(z, x): latent ``z`` (B, d) or (B, n, d), points ``x`` (B, n, 3) -> SDF (B, n)."""
+class SkipMLP(nn.Module):
+    """f(z, x): latent ``z`` (B, d) or (B, n, d) and points ``x`` (B, n, 3) -> values (B, n).
+
+    The code goes first, the network input is concatenated again before layer ``skip`` (scaled
+    by ``skip_scale``); subclasses give the layers, the hidden activation and the output map.
+    """
+
+    layers: nn.ModuleList
+    skip: int
+    skip_scale: float = 1.0
+
+    def hidden(self, h: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def output(self, h: torch.Tensor) -> torch.Tensor:
+        return h
+
+    def forward(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        if z.dim() == 2:
+            z = z[:, None, :].expand(-1, x.shape[1], -1)
+        inp = torch.cat([z, x], dim=-1)
+        h = inp
+        last = len(self.layers) - 1
+        for i, layer in enumerate(self.layers):
+            if i == self.skip:
+                h = torch.cat([h, inp], dim=-1) * self.skip_scale
+            h = layer(h)
+            if i < last:
+                h = self.hidden(h)
+        return self.output(h).squeeze(-1)
+
+
+class IGRDecoder(SkipMLP):
+    """IGR's ``ImplicitNet``: Softplus(beta), skip input scaled by 1/sqrt(2), linear output."""
+
+    skip_scale = 1 / math.sqrt(2)
 
     def __init__(
         self,
@@ -56,10 +90,8 @@ class IGRDecoder(nn.Module):
         super().__init__()
         self.latent_dim = latent_dim
         self.skip = depth // 2
-        in_dim = latent_dim + 3
-        self.layers = nn.ModuleList(
-            nn.Linear(i, o) for i, o in _dims(in_dim, width, depth, self.skip)
-        )
+        dims = _dims(latent_dim + 3, width, depth, self.skip)
+        self.layers = nn.ModuleList(nn.Linear(i, o) for i, o in dims)
         self.activation = nn.Softplus(beta=beta)
         if geometric_init:
             self._geometric_init(radius_init)
@@ -75,51 +107,31 @@ class IGRDecoder(nn.Module):
                 nn.init.normal_(layer.weight, 0.0, math.sqrt(2) / math.sqrt(layer.out_features))
                 nn.init.constant_(layer.bias, 0.0)
 
-    def forward(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        if z.dim() == 2:
-            z = z[:, None, :].expand(-1, x.shape[1], -1)
-        inp = torch.cat([z, x], dim=-1)
-        h = inp
-        last = len(self.layers) - 1
-        for i, layer in enumerate(self.layers):
-            if i == self.skip:
-                h = torch.cat([h, inp], dim=-1) / math.sqrt(2)
-            h = layer(h)
-            if i < last:
-                h = self.activation(h)
-        return h.squeeze(-1)
+    def hidden(self, h: torch.Tensor) -> torch.Tensor:
+        return self.activation(h)
 
 
-class DeepSDFDecoder(nn.Module):
-    """DeepSDF's decoder, same call convention as :class:`IGRDecoder`."""
+class DeepSDFDecoder(SkipMLP):
+    """DeepSDF's decoder: weight-normed hidden layers, ReLU, dropout, unscaled skip, tanh."""
 
-    def __init__(self, latent_dim: int, width: int = 512, depth: int = 8,
-                 dropout: float = 0.2) -> None:  # fmt: skip
+    def __init__(
+        self, latent_dim: int, width: int = 512, depth: int = 8, dropout: float = 0.2
+    ) -> None:
         super().__init__()
         self.latent_dim = latent_dim
         self.skip = depth // 2
-        in_dim = latent_dim + 3
         layers = []
-        for i, (a, b) in enumerate(_dims(in_dim, width, depth, self.skip)):
+        for i, (a, b) in enumerate(_dims(latent_dim + 3, width, depth, self.skip)):
             lin = nn.Linear(a, b)
-            is_hidden = i < depth
-            layers.append(nn.utils.parametrizations.weight_norm(lin) if is_hidden else lin)
+            layers.append(nn.utils.parametrizations.weight_norm(lin) if i < depth else lin)
         self.layers = nn.ModuleList(layers)
         self.dropout = dropout
 
-    def forward(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        if z.dim() == 2:
-            z = z[:, None, :].expand(-1, x.shape[1], -1)
-        inp = torch.cat([z, x], dim=-1)
-        h = inp
-        last = len(self.layers) - 1
-        for i, layer in enumerate(self.layers):
-            if i == self.skip:
-                h = torch.cat([h, inp], dim=-1)
-            h = layer(h)
-            if i < last:
-                h = F.dropout(F.relu(h), p=self.dropout, training=self.training)
-        return torch.tanh(h).squeeze(-1)
+    def hidden(self, h: torch.Tensor) -> torch.Tensor:
+        return F.dropout(F.relu(h), p=self.dropout, training=self.training)
+
+    def output(self, h: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(h)
 
 
 def mlp(sizes: list[int]) -> nn.Sequential:
