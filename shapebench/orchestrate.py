@@ -17,6 +17,7 @@ from shapebench.resolve import ResolvedMethod, resolve_dataset, resolve_method, 
 from shapebench.runner import CellResult, Runner, RunPlan, validate_contexts
 from shapebench.tracking import Tracker
 from shapebench.training import checkpoint_key, ensure_checkpoint
+from shapebench.types import TRAIN
 
 
 @dataclass
@@ -84,6 +85,13 @@ def evaluate(
         if any(m.name == dataset.default_metric for m in metrics)
         else metrics[0].name
     )
+    if method.cls.trains and not req.checkpoint and not dataset.objects(TRAIN):
+        raise ShapebenchError(
+            f"method {method.name!r} needs training, and dataset {dataset.name!r} has no "
+            "training objects",
+            f"train on a dataset that has some (e.g. shapebench train -m {method.name} -d "
+            "synthetic) and pass the checkpoint with --checkpoint PATH",
+        )
     tracker = tracker or Tracker(settings)  # an unreachable server fails here, before any work
     runner = Runner(tracker)
     cells: list[CellResult] = []

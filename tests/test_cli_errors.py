@@ -67,3 +67,14 @@ def test_bad_sweep_file_is_named(shapebench, tmp_path):
     bad.write_text("methods: [gauss]\ndatasets: [synthetic]\ncontexts: [fifty]\n")
     _clean_error(shapebench("sweep", str(bad)), str(bad), "contexts")
     _clean_error(shapebench("sweep", str(tmp_path / "missing.yaml")), "not found")
+
+
+def test_trainable_method_on_a_dataset_without_training_objects(shapebench, tmp_path):
+    import trimesh
+
+    root = tmp_path / "scans"
+    root.mkdir()
+    trimesh.creation.icosphere().export(root / "ball.obj")
+    res = shapebench("run", "-m", "igr", "-d", "meshes", "--data-root", str(root), "--contexts",
+                     "50", "-D", "surface_candidates=2000", "-D", "gt_points=1000")  # fmt: skip
+    _clean_error(res, "method 'igr' needs training", "has no training objects", "--checkpoint")
