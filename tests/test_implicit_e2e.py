@@ -77,3 +77,17 @@ def test_deepsdf_trains_on_sdf_samples_and_completes_or_fails_per_object(shapebe
     # After one epoch the SDF may not cross zero yet: then the object fails with the reason.
     for row in table.itertuples():
         assert row.status == "ok" or "surface" in row.error.lower() or "level" in row.error
+
+
+def test_pcn_trains_on_complete_clouds_and_returns_its_fine_points(shapebench):
+    res = shapebench("run", "-m", "pcn", "-d", "synthetic", *TINY, "-D", "complete_points=512",
+                     "-O", "feature=32", "-O", "num_coarse=16", "-O", "grid_size=2",
+                     "-O", "target_points=256", "-O", "epochs=1", "-O", "batch_shapes=4",
+                     "--split", "novel", "--contexts", "50,100", "-q")  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    cells = shapebench.cell_runs("synthetic-novel")
+    assert len(cells) == 2 and all(c.data.metrics["failures"] == 0 for c in cells)
+    table = pd.read_csv(shapebench.client().download_artifacts(
+        cells[0].info.run_id, "per_object.csv", str(shapebench.workspace)))  # fmt: skip
+    assert (table["n_points"] == 64).all()  # 16 coarse points x a 2 x 2 folding grid
+    assert len(_training_runs(shapebench)) == 1

@@ -13,9 +13,9 @@ from shapebench.method import Method, TrainingContext
 from shapebench.types import Completion, Context
 
 
-class ImplicitMethod(Method):
-    """Subclasses set ``Module`` (a LightningModule class with ``decoder``) and implement
-    :meth:`build_module`, :meth:`data_module` and :meth:`infer_latents`."""
+class LightningMethod(Method):
+    """A method trained with PyTorch Lightning: subclasses set ``Module`` (a LightningModule
+    class) and implement :meth:`build_module`; training data come from :meth:`data_module`."""
 
     trains = True
     batch_size = 8
@@ -34,15 +34,12 @@ class ImplicitMethod(Method):
         o = self.options
         return ShapeDataModule(ctx.dataset, self.supervision, getattr(o, "surface_points", 1),
                                o.batch_shapes, sdf_points=getattr(o, "sdf_points", 0),
-                               quiet=ctx.quiet)  # fmt: skip
+                               quiet=ctx.quiet,
+                               target_points=getattr(o, "target_points", 0))  # fmt: skip
 
     @abstractmethod
     def build_module(self, n_shapes: int):
         """A fresh LightningModule for ``n_shapes`` training objects."""
-
-    @abstractmethod
-    def infer_latents(self, contexts: list[Context]) -> torch.Tensor:
-        """One latent code per context, (B, d), on :attr:`device`."""
 
     def fit(self, ctx: TrainingContext) -> Path:
         from shapebench.lightning_fit import fit_lightning
@@ -59,6 +56,21 @@ class ImplicitMethod(Method):
         self.module.eval()
         for p in self.module.parameters():
             p.requires_grad_(False)
+
+    def complete(self, context: Context, n_points: int) -> Completion:
+        result = self.complete_batch([context], n_points)[0]
+        if isinstance(result, Exception):
+            raise result
+        return result
+
+
+class ImplicitMethod(LightningMethod):
+    """A LightningMethod whose ``Module`` has a ``decoder`` of an implicit surface: latent codes
+    from :meth:`infer_latents`, then marching cubes."""
+
+    @abstractmethod
+    def infer_latents(self, contexts: list[Context]) -> torch.Tensor:
+        """One latent code per context, (B, d), on :attr:`device`."""
 
     def complete_batch(
         self, contexts: list[Context], n_points: int
@@ -84,9 +96,3 @@ class ImplicitMethod(Method):
         return mesh_completion(self.module.decoder, z, ctx, n_points,
                                self.options.mesh_resolution, self.device,
                                bf16=self.options.mesh_bf16)  # fmt: skip
-
-    def complete(self, context: Context, n_points: int) -> Completion:
-        result = self.complete_batch([context], n_points)[0]
-        if isinstance(result, Exception):
-            raise result
-        return result
