@@ -106,7 +106,8 @@ class Dataset(ABC):
 
         Always: visible surface points and normals, and the ground truth. ``need`` asks for
         training supervision as well, in ``ObjectData.extra``: ``"sdf"`` (``(m, 4)`` rows of
-        x, y, z, sdf) for SDF_SAMPLES, ``"complete_points"`` for COMPLETE_POINTS.
+        x, y, z, sdf) for SDF_SAMPLES, ``"occupancy"`` (x, y, z, 1 if inside) for
+        OCCUPANCY_SAMPLES, ``"complete_points"`` for COMPLETE_POINTS.
         """
 
     @property
@@ -151,6 +152,10 @@ class MeshOptions:
     sdf_samples: int = field(
         default=500_000,
         metadata={"help": "SDF training samples per object (DeepSDF: 500k)", "training_only": True},
+    )
+    occupancy_samples: int = field(
+        default=100_000,
+        metadata={"help": "occupancy samples per object (OccNet: 100k)", "training_only": True},
     )
     complete_points: int = field(
         default=16_384,
@@ -208,7 +213,7 @@ class MeshDataset(Dataset):
         if cached is not None:
             return cached[name]
         from shapebench.preprocess.normalize import normalize
-        from shapebench.preprocess.samples import complete_points, sdf_samples
+        from shapebench.preprocess.samples import complete_points, occupancy_samples, sdf_samples
 
         try:
             unit, _, _ = normalize(self.mesh(ref))
@@ -217,6 +222,8 @@ class MeshDataset(Dataset):
         rng = np.random.default_rng(stable_seed(name, self.training_fingerprint(), ref.id))
         if kind is Supervision.SDF_SAMPLES:
             array = sdf_samples(unit, self.options.sdf_samples, rng)
+        elif kind is Supervision.OCCUPANCY_SAMPLES:
+            array = occupancy_samples(unit, self.options.occupancy_samples, rng)
         else:
             array = complete_points(unit, self.options.complete_points, rng)
         save_npz_atomic(path, {name: array})
@@ -245,7 +252,11 @@ class MeshDataset(Dataset):
 
 
 _BASE_ARRAYS = ("surface_points", "surface_normals", "gt_points")
-_EXTRA_ARRAYS = {Supervision.SDF_SAMPLES: "sdf", Supervision.COMPLETE_POINTS: "complete_points"}
+_EXTRA_ARRAYS = {
+    Supervision.SDF_SAMPLES: "sdf",
+    Supervision.OCCUPANCY_SAMPLES: "occupancy",
+    Supervision.COMPLETE_POINTS: "complete_points",
+}
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray] | None:

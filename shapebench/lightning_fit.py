@@ -29,12 +29,14 @@ class ShapeSamples(TorchDataset):
     """Item i: a fresh random subset of object i's training arrays, and i (for auto-decoders)."""
 
     def __init__(self, objects: list[dict[str, np.ndarray]], surface_points: int,
-                 sdf_points: int = 0, target_points: int = 0) -> None:  # fmt: skip
+                 sdf_points: int = 0, target_points: int = 0,
+                 query_points: int = 0) -> None:  # fmt: skip
         self.objects = [{k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in o.items()}
                         for o in objects]  # fmt: skip
         self.surface_points = surface_points
         self.sdf_points = sdf_points
         self.target_points = target_points
+        self.query_points = query_points
         for o in self.objects:
             if "sdf" in o:  # DeepSDF draws half of its samples outside, half inside
                 o["sdf_pos"] = o["sdf"][o["sdf"][:, 3] > 0]
@@ -47,6 +49,9 @@ class ShapeSamples(TorchDataset):
         o = self.objects[i]
         idx = torch.randint(len(o["points"]), (self.surface_points,))
         item = {"index": torch.tensor(i), "points": o["points"][idx], "normals": o["normals"][idx]}
+        if "occupancy" in o and self.query_points:
+            occ = o["occupancy"]
+            item["occupancy"] = occ[torch.randint(len(occ), (self.query_points,))]
         if "complete_points" in o and self.target_points:
             full = o["complete_points"]
             item["complete"] = full[torch.randint(len(full), (self.target_points,))]
@@ -63,10 +68,12 @@ class ShapeDataModule(pl.LightningDataModule):
 
     def __init__(self, dataset: Dataset, need: frozenset[Supervision], surface_points: int,
                  batch_size: int, sdf_points: int = 0,
-                 quiet: bool = False, target_points: int = 0) -> None:  # fmt: skip
+                 quiet: bool = False, target_points: int = 0,
+                 query_points: int = 0) -> None:  # fmt: skip
         super().__init__()
         self.quiet = quiet
         self.target_points = target_points
+        self.query_points = query_points
         self.dataset = dataset
         self.need = need
         self.surface_points = surface_points
@@ -89,7 +96,7 @@ class ShapeDataModule(pl.LightningDataModule):
             except ObjectLoadError:
                 continue  # a broken training object is skipped, not fatal
             arrays = {"points": data.surface_points, "normals": data.surface_normals}
-            for name in ("sdf", "complete_points"):
+            for name in ("sdf", "occupancy", "complete_points"):
                 if name in data.extra:
                     arrays[name] = data.extra[name]
             self.refs.append(ref)
@@ -100,7 +107,7 @@ class ShapeDataModule(pl.LightningDataModule):
 
     def train_dataloader(self) -> DataLoader:
         samples = ShapeSamples(self._objects, self.surface_points, self.sdf_points,
-                               self.target_points)  # fmt: skip
+                               self.target_points, self.query_points)  # fmt: skip
         return DataLoader(samples, batch_size=min(self.batch_size, len(samples)), shuffle=True,
                           num_workers=0, drop_last=False)  # fmt: skip
 

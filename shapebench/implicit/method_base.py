@@ -35,7 +35,8 @@ class LightningMethod(Method):
         return ShapeDataModule(ctx.dataset, self.supervision, getattr(o, "surface_points", 1),
                                o.batch_shapes, sdf_points=getattr(o, "sdf_points", 0),
                                quiet=ctx.quiet,
-                               target_points=getattr(o, "target_points", 0))  # fmt: skip
+                               target_points=getattr(o, "target_points", 0),
+                               query_points=getattr(o, "query_points", 0))  # fmt: skip
 
     @abstractmethod
     def build_module(self, n_shapes: int):
