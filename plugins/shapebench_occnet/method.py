@@ -16,13 +16,11 @@ switches.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from shapebench_igr.options import _c
 
-from shapebench.geometry.meshing import extract_mesh, sample_mesh_points
 from shapebench.implicit.method_base import LightningMethod
 from shapebench.implicit.recipes import apply_recipe
 from shapebench.types import Completion, Context, Supervision
@@ -97,6 +95,8 @@ class OccNet(LightningMethod):
     def _mesh(self, code, ctx: Context, n_points: int) -> Completion:
         import torch
 
+        from shapebench.implicit.completion import mesh_completion
+
         decoder = self.module.decoder
 
         @torch.no_grad()
@@ -104,12 +104,7 @@ class OccNet(LightningMethod):
             x = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float32))[None]
             return decoder(x.to(self.device), code[None]).cpu().numpy()[0]
 
-        start = time.perf_counter()
         tau = self.options.threshold
-        res = self.options.mesh_resolution
-        mesh, stats = extract_mesh(logits, resolution=res, level=math.log(tau / (1 - tau)),
-                                   inside_is_negative=False, coarse=min(32, res))  # fmt: skip
-        return Completion(points=sample_mesh_points(mesh, n_points, ctx.seed), mesh=mesh, info={
-            "mesh_seconds": time.perf_counter() - start,
-            "mesh_evaluations": float(stats.evaluations),
-        })  # fmt: skip
+        return mesh_completion(logits, ctx, n_points, self.options.mesh_resolution,
+                               level=math.log(tau / (1 - tau)),
+                               inside_is_negative=False)  # fmt: skip

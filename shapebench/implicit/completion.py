@@ -78,13 +78,15 @@ def field_of(decoder: nn.Module, z: torch.Tensor, device: torch.device,
     return field
 
 
-def mesh_completion(decoder: nn.Module, z: torch.Tensor, ctx: Context, n_points: int,
-                    resolution: int, device: torch.device, bf16: bool = False,
-                    level: float = 0.0) -> Completion:  # fmt: skip
-    """Marching cubes on the decoded SDF, then ``n_points`` sampled area-weighted on the mesh."""
+def mesh_completion(field: Callable[[np.ndarray], np.ndarray], ctx: Context, n_points: int,
+                    resolution: int, level: float = 0.0,
+                    inside_is_negative: bool = True) -> Completion:  # fmt: skip
+    """Marching cubes on ``field`` (an SDF, or logits with ``inside_is_negative=False``), then
+    ``n_points`` sampled area-weighted on the mesh."""
     start = time.perf_counter()
-    mesh, stats = extract_mesh(field_of(decoder, z, device, bf16), resolution=resolution,
-                               level=level, coarse=min(32, resolution))  # fmt: skip
+    mesh, stats = extract_mesh(field, resolution=resolution, level=level,
+                               inside_is_negative=inside_is_negative,
+                               coarse=min(32, resolution))  # fmt: skip
     points = sample_mesh_points(mesh, n_points, seed=ctx.seed)
     return Completion(points=points, mesh=mesh, info={
         "mesh_seconds": time.perf_counter() - start,

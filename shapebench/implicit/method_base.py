@@ -92,8 +92,7 @@ class ImplicitMethod(LightningMethod):
         return self.mesh(z, ctx, n_points)
 
     def mesh(self, z: torch.Tensor, ctx: Context, n_points: int) -> Completion:
-        from shapebench.implicit.completion import mesh_completion
+        from shapebench.implicit.completion import field_of, mesh_completion
 
-        return mesh_completion(self.module.decoder, z, ctx, n_points,
-                               self.options.mesh_resolution, self.device,
-                               bf16=self.options.mesh_bf16)  # fmt: skip
+        field = field_of(self.module.decoder, z, self.device, bf16=self.options.mesh_bf16)
+        return mesh_completion(field, ctx, n_points, self.options.mesh_resolution)
