@@ -101,6 +101,25 @@ def trainer_options(f):
     return f
 
 
+def protocol_options(f):
+    """The evaluation protocol: part of every cell key (see shapebench.protocol)."""
+    f = click.option(
+        "--context-normals",
+        is_flag=True,
+        default=None,
+        help="Give methods the normals of the context points (not the paper's protocol; rows are "
+        "labelled +normals).",
+    )(f)
+    f = click.option(
+        "--frame",
+        type=click.Choice(["unit-radius", "unit-diameter"]),
+        default=None,
+        help="Frame distances are measured in: unit-radius (default) or unit-diameter (the "
+        "paper's scale: squared distances / 4).",
+    )(f)
+    return f
+
+
 def plugin_options(f):
     f = click.option(
         "--data-root",
@@ -132,16 +151,9 @@ def _settings(profile, tracking_uri, cache_dir, workspace):
 
 
 def _trainer(settings, seed: int, **given) -> Any:
-    from dataclasses import fields
+    from shapebench.training import trainer_options
 
-    from shapebench.method import TrainerOptions
-
-    values = dict(settings.profile.get("trainer") or {})
-    values.update({k: v for k, v in given.items() if v is not None})
-    known = {f.name for f in fields(TrainerOptions)}
-    values = {k: v for k, v in values.items() if k in known}
-    values["seed"] = seed
-    return TrainerOptions(**values)
+    return trainer_options(settings, seed, **given)
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -197,6 +209,13 @@ def cli() -> None:
 )
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
+@click.option(
+    "--label",
+    default=None,
+    help="Leaderboard row name for this variant [default: the method name with the options "
+    "that differ from the profile, e.g. gauss[sigma=0.05]].",
+)
+@protocol_options
 @plugin_options
 @trainer_options
 @store_options
@@ -211,6 +230,9 @@ def run(
     samples,
     force,
     quiet,
+    label,
+    frame,
+    context_normals,
     method_opts,
     dataset_opts,
     data_root,
@@ -223,13 +245,16 @@ def run(
     """Evaluate METHOD on DATASET at every context size; log to MLflow; print a summary.
 
     Cells (split x context size x seed) that already have a finished run with the same
-    resolved configuration are skipped, so an interrupted run resumes where it stopped.
+    resolved configuration (options, code, checkpoint, protocol) are skipped, so an
+    interrupted run resumes where it stopped. Exits with status 1 when every object of some
+    cell failed, after printing the most common reasons.
 
     \b
     Examples:
       shapebench run --method gauss --dataset synthetic
       shapebench run -m gauss -d synthetic --contexts 50,100 -O sigma=0.02 --quiet
       shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
+      shapebench run -m gauss -d synthetic --frame unit-diameter   # the paper's scale
       shapebench run -m msc -d synthetic --samples 4   # posterior samples, trains first
     """
     from shapebench.orchestrate import EvalRequest, evaluate
@@ -249,9 +274,32 @@ def run(
         checkpoint=checkpoint,
         force=force,
         quiet=quiet,
+        protocol=_protocol(frame, context_normals),
+        label=label,
     )
     outcome = evaluate(req, settings, lambda seed: _trainer(settings, seed, **trainer))
     print_summary(outcome, settings)
+    _exit_if_all_failed([outcome])
+
+
+def _protocol(frame: str | None, context_normals: bool | None):
+    from shapebench.protocol import DEFAULT_FRAME, Protocol
+
+    return Protocol(context_normals=bool(context_normals), frame=frame or DEFAULT_FRAME)
+
+
+def _exit_if_all_failed(outcomes) -> None:
+    bad = [(o, c) for o in outcomes for c in o.all_failed_cells]
+    if bad:
+        cells = ", ".join(
+            f"{o.variant.label if o.variant else o.method.name} {c.split} k={c.context_size}"
+            for o, c in bad
+        )
+        click.secho(f"Error: every object failed in {len(bad)} cell(s): {cells}", fg="red",
+                    err=True)  # fmt: skip
+        click.echo("  the reasons are listed above; the runs are kept in MLflow as evidence",
+                   err=True)  # fmt: skip
+        sys.exit(1)
 
 
 def _parse(pairs, flag) -> dict:
@@ -264,9 +312,11 @@ def _parse(pairs, flag) -> dict:
 @click.argument("sweep_file", type=click.Path(dir_okay=False))
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
+@protocol_options
 @trainer_options
 @store_options
-def sweep(sweep_file, force, quiet, profile, tracking_uri, cache_dir, workspace, **trainer) -> None:
+def sweep(sweep_file, force, quiet, frame, context_normals, profile, tracking_uri, cache_dir,
+          workspace, **trainer) -> None:  # fmt: skip
     """Run every method x dataset x split x context size x seed of SWEEP_FILE.
 
     Finished cells (same resolved config hash) are skipped: rerun the same command after
@@ -281,6 +331,11 @@ def sweep(sweep_file, force, quiet, profile, tracking_uri, cache_dir, workspace,
       splits: [trained, novel]
       contexts: [50, 100, 300, 1000]
       seeds: [0]
+      frame: unit-radius             # or unit-diameter (the paper's scale)
+      context_normals: false         # the paper's protocol: points only
+
+    A method entry may carry a leaderboard label: {name: gauss, options: {sigma: 0.05},
+    label: gauss-wide}. Exits with status 1 when every object of some cell failed.
     """
     from shapebench.report import print_summary
     from shapebench.sweep import load_sweep, run_sweep
@@ -294,10 +349,23 @@ def sweep(sweep_file, force, quiet, profile, tracking_uri, cache_dir, workspace,
             click.echo(f"  hint: {exc.hint}", err=True)
         click.echo("  continuing with the rest of the sweep", err=True)
 
+    if frame is not None or context_normals is not None:
+        from dataclasses import replace
+
+        spec = replace(
+            spec,
+            protocol=_protocol(
+                frame or spec.protocol.frame,
+                spec.protocol.context_normals if context_normals is None else context_normals,
+            ),
+        )
+    outcomes = []
     for outcome in run_sweep(
         spec, settings, force, quiet, lambda seed: _trainer(settings, seed, **trainer), report
     ):
         print_summary(outcome, settings)
+        outcomes.append(outcome)
+    _exit_if_all_failed(outcomes)
 
 
 @cli.command()
@@ -357,6 +425,25 @@ def train(
 )
 @click.option("--metric", default=None, help="Metric to rank by [default: the dataset's].")
 @click.option(
+    "--frame",
+    type=click.Choice(["unit-radius", "unit-diameter"]),
+    default="unit-radius",
+    show_default=True,
+    help="Evaluation frame of the runs to tabulate; unit-diameter tables show the paper's "
+    "figures beside ours and are written as <dataset>-<split>-unit-diameter.md.",
+)
+@click.option(
+    "--data-version",
+    default=None,
+    metavar="FINGERPRINT",
+    help="Tabulate this data version (a fingerprint prefix) [default: the newest with runs].",
+)
+@click.option(
+    "--all-variants",
+    is_flag=True,
+    help="Also show older variants that share a label with a newer one (suffixed #key).",
+)
+@click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False),
@@ -366,20 +453,31 @@ def train(
 )
 @store_options
 def leaderboard(
-    dataset, splits, reference, metric, out_dir, profile, tracking_uri, cache_dir, workspace
-) -> None:
+    dataset, splits, reference, metric, frame, data_version, all_variants, out_dir, profile,
+    tracking_uri, cache_dir, workspace,
+) -> None:  # fmt: skip
     """Build raw and normalised Chamfer tables for DATASET from the runs in MLflow.
 
-    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3
-    (method x context size, mean ± std over objects, object and failure counts). For ShapeNet
-    and ICL-NUIM the paper's own figures are shown beside ours, labelled as the paper's.
+    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3.
+    A row is one method variant (options, code, checkpoint, protocol), labelled like
+    gauss[sigma=0.05]; per context size the best row is bold and rows statistically tied with
+    it (paired Wilcoxon over the same objects, Holm-corrected) are marked. The paper's own
+    figures (ShapeNet, ICL-NUIM) appear only beside a --frame unit-diameter table.
+
+    \b
+    Examples:
+      shapebench leaderboard -d synthetic
+      shapebench leaderboard -d synthetic --split trained --reference gauss
+      shapebench leaderboard -d shapenet --frame unit-diameter   # beside the paper's figures
+      shapebench leaderboard -d meshes --data-version 3f2a       # an older data version
     """
     from shapebench.leaderboard import build_leaderboards
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     for path in build_leaderboards(
-        settings, dataset, splits.split(",") if splits else None, reference, metric, Path(out_dir)
-    ):
+        settings, dataset, splits.split(",") if splits else None, reference, metric,
+        Path(out_dir), frame, data_version, all_variants,
+    ):  # fmt: skip
         click.echo(f"wrote {path}")
 
 

@@ -49,7 +49,11 @@ class ContextStore:
         tmp.replace(path)
         return order
 
-    def context(self, data: ObjectData, size: int, run_seed: int) -> Context:
+    def context(
+        self, data: ObjectData, size: int, run_seed: int, normals: bool = False
+    ) -> Context:
+        """The first ``size`` points of the object's stored order; with their normals only when
+        the protocol gives methods normals."""
         n = len(data.surface_points)
         if size > n:
             raise ValueError(f"context size {size} exceeds the {n} visible points")
@@ -57,7 +61,7 @@ class ContextStore:
         return Context(
             ref=data.ref,
             points=data.surface_points[idx],
-            normals=data.surface_normals[idx],
+            normals=data.surface_normals[idx] if normals else None,
             seed=stable_seed("method", self.fingerprint, data.ref.id, size, run_seed),
         )
 

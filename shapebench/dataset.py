@@ -66,23 +66,32 @@ class Dataset(ABC):
         """The data/protocol version; change it whenever the produced arrays change."""
         return "1"
 
-    def identity(self, training: bool) -> dict[str, Any]:
+    def identity(self, training: bool, selection: bool = True) -> dict[str, Any]:
         """What the produced data depends on; hashed into the fingerprints.
 
         Options marked ``metadata={"training_only": True}`` (sizes of training samples, training
         objects) count only for ``training=True``, so changing them retrains methods but never
-        changes test objects or contexts. Override to add what options cannot show (the contents
-        of a user's split files, a preprocessing version).
+        changes test objects or contexts. Options marked ``metadata={"selection": True}`` choose
+        *which* objects form the splits (test fraction, objects per category, split files) but not
+        how one object is processed: they count only for ``selection=True``, so changing them
+        changes the evaluated set (and the cell keys) without re-preprocessing any object.
+        Override to add what options cannot show (the contents of a user's split files, a
+        preprocessing version); put selection-only additions under ``if selection``.
         """
         return {
             "name": self.name,
             "version": self.version,
-            "options": _options(self.options, training),
+            "options": _options(self.options, training, selection),
         }
 
     def fingerprint(self) -> str:
-        """Identifies the evaluation data (cache keys, context draws, cell keys, run tags)."""
+        """Identifies the evaluation set (cell keys, run tags): the data and which objects."""
         return stable_hash(self.identity(training=False))
+
+    def data_fingerprint(self) -> str:
+        """Identifies the arrays of each object, whichever objects are selected: the cache root,
+        the preprocessing seeds and the context draws, so a split option never invalidates them."""
+        return stable_hash(self.identity(training=False, selection=False))
 
     def config(self) -> dict[str, Any]:
         """What identifies the evaluation data, for run params and cell keys."""
@@ -91,6 +100,15 @@ class Dataset(ABC):
     def training_fingerprint(self) -> str:
         """Identifies everything training sees (checkpoint keys)."""
         return stable_hash(self.identity(training=True))
+
+    def training_data_fingerprint(self) -> str:
+        """Identifies each object's training arrays, whichever objects are selected."""
+        return stable_hash(self.identity(training=True, selection=False))
+
+    def selection_notes(self, split: str) -> list[str]:
+        """Why objects of ``split`` were left out, one line each, for what ``run`` prints before
+        evaluating (a per-category cap, categories without test objects...). Empty by default."""
+        return []
 
     @abstractmethod
     def categories(self) -> list[Category]:
@@ -113,7 +131,7 @@ class Dataset(ABC):
     @property
     def cache_root(self) -> Path:
         """Where this exact data version's arrays are cached."""
-        return self.cache_dir / self.name / self.fingerprint()
+        return self.cache_dir / self.name / self.data_fingerprint()
 
     def cache_path(self, ref: ObjectRef) -> Path:
         """The cached arrays of one object (written atomically by :func:`save_npz_atomic`)."""
@@ -124,13 +142,14 @@ class Dataset(ABC):
         return None
 
 
-def _options(options: Any, training: bool) -> dict[str, Any]:
+def _options(options: Any, training: bool, selection: bool = True) -> dict[str, Any]:
     if options is None or not is_dataclass(options):
         return {}
     return {
         f.name: getattr(options, f.name)
         for f in fields(options)
-        if training or not f.metadata.get("training_only")
+        if (training or not f.metadata.get("training_only"))
+        and (selection or not f.metadata.get("selection"))
     }
 
 
@@ -180,8 +199,8 @@ class MeshDataset(Dataset):
     def max_context_size(self) -> int | None:
         return self.options.surface_candidates
 
-    def identity(self, training: bool) -> dict[str, Any]:
-        return {**super().identity(training), "preprocess": PREPROCESS_VERSION}
+    def identity(self, training: bool, selection: bool = True) -> dict[str, Any]:
+        return {**super().identity(training, selection), "preprocess": PREPROCESS_VERSION}
 
     def preprocess_params(self) -> PreprocessParams:
         o = self.options
@@ -219,7 +238,7 @@ class MeshDataset(Dataset):
             unit, _, _ = normalize(self.mesh(ref))
         except Exception as exc:
             raise ObjectLoadError(f"cannot build {name}: {type(exc).__name__}: {exc}") from exc
-        rng = np.random.default_rng(stable_seed(name, self.training_fingerprint(), ref.id))
+        rng = np.random.default_rng(stable_seed(name, self.training_data_fingerprint(), ref.id))
         if kind is Supervision.SDF_SAMPLES:
             array = sdf_samples(unit, self.options.sdf_samples, rng)
         elif kind is Supervision.OCCUPANCY_SAMPLES:
@@ -231,12 +250,12 @@ class MeshDataset(Dataset):
 
     @property
     def training_cache_root(self) -> Path:
-        return self.cache_dir / self.name / self.training_fingerprint() / "training"
+        return self.cache_dir / self.name / self.training_data_fingerprint() / "training"
 
     def _build(self, ref: ObjectRef, path: Path) -> dict[str, np.ndarray]:
         try:
             mesh = self.mesh(ref)
-            rng = np.random.default_rng(stable_seed("preprocess", self.fingerprint(), ref.id))
+            rng = np.random.default_rng(stable_seed("preprocess", self.data_fingerprint(), ref.id))
             arrays = prepare_mesh(mesh, self.preprocess_params(), rng)
         except Exception as exc:
             reason = (

@@ -1,31 +1,50 @@
 """Leaderboards built from the runs in MLflow, laid out like the paper's Tables 1-3.
 
-For each finished cell run of a dataset/split experiment the per-object table (the run's
-``per_object.csv`` artifact) is read back from MLflow. The *raw* table is the mean ± std over
-objects of the metric (x1000 for Chamfer); the *normalised* table divides each object's value by
-the reference method's value on the same object and context size, then takes mean ± std (the
-paper's equation 8). Objects where either side failed are left out of the ratio and counted.
-std is the sample standard deviation (ddof=1). When several seeds were run, every
-(object, seed) pair counts as one sample. Values with different metric cards are never mixed.
+A table covers one dataset, split, data version (fingerprint) and evaluation frame, with one
+metric card. A **row is one variant** (see :mod:`shapebench.variant`): a method with one set of
+resolved options, code, training and protocol, labelled ``gauss[sigma=0.05]`` or by the user's
+``--label``; a context size the variant lacks shows "–". The newest finished run of each
+(variant, context size, seed) counts (a ``--force`` rerun replaces the older one).
+
+For each run the per-object table (the run's ``per_object.csv`` artifact) is read back from MLflow
+and the arithmetic of :mod:`shapebench.board_stats` applies: failures score as the worst success of
+their cell, the normalised table is the paper's equation 8, and the best variant of each context
+size is marked with those statistically tied with it (paired Wilcoxon, Holm-corrected).
 """
 
 from __future__ import annotations
 
+import json
 import shlex
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from shapebench import board_stats
 from shapebench.config import Settings
 from shapebench.errors import ShapebenchError
 from shapebench.metric import MetricCard
 from shapebench.paper import PAPER_METHOD_ORDER, paper_table
+from shapebench.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
 from shapebench.tracking import CELL_KIND, Tracker, experiment_name
+
+
+@dataclass
+class Row:
+    """One leaderboard row: a variant and how to print it."""
+
+    variant: str
+    label: str
+    method: str
+    display: str
+    overrides: dict
+    code: str = ""
+    checkpoint: str = ""
 
 
 @dataclass
@@ -34,33 +53,27 @@ class Board:
     split: str
     metric: str
     card: str
-    reference: str
+    reference: str  # the reference row's label
     contexts: list[int]
-    raw: pd.DataFrame  # method, display, context, mean, std, n, failures
+    rows: list[Row]
+    raw: pd.DataFrame  # board_stats.raw_table, one row per (variant, context)
     normalized: pd.DataFrame | None
+    significance: pd.DataFrame
     note: str
     paper: pd.DataFrame
     experiment_id: str
     fingerprint: str
-    left_out: int
+    data_root: str = ""
+    frame: str = DEFAULT_FRAME
+    protocol: str = ""
+    left_out: list[str] = field(default_factory=list)
 
 
 def _card_text(tag: str) -> str:
-    fields = dict(item.split("=", 1) for item in tag.split(";"))
     try:
-        card = MetricCard(
-            metric=fields["metric"],
-            power=int(fields["power"]),
-            reduction=fields["reduction"],
-            direction=fields["direction"],
-            halved=fields["halved"] == "True",
-            scale=float(fields["scale"]),
-            frame=fields["frame"],
-            eval_points=int(fields["eval_points"]),
-        )
-    except (KeyError, ValueError):
+        return MetricCard.from_tag(tag).describe()
+    except ValueError:
         return tag
-    return card.describe()
 
 
 def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
@@ -83,25 +96,116 @@ def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFra
             path = tracker.client.download_artifacts(run["run_id"], "per_object.csv", str(dst))
             table = pd.read_csv(path, keep_default_na=False, na_values=[""])
             table["value"] = table.get(metric, np.nan)
-            table["method"] = run["method"]
-            table["display"] = run["_display"]
+            table["variant"] = run["variant.key"]
+            table["label"] = run["_label"]
             table["context"] = int(run["context_size"])
             table["seed"] = int(run["seed"])
-            frames.append(
-                table[["method", "display", "context", "seed", "object", "status", "value"]]
-            )
+            table["object"] = table["object"].astype(str)
+            cols = ["variant", "label", "context", "seed", "object", "status", "value"]
+            frames.append(table[cols])
     return pd.concat(frames, ignore_index=True)
 
 
-def _aggregate(values: pd.Series) -> tuple[float, float]:
-    v = values.to_numpy(dtype=float)
-    if len(v) == 0:
-        return (np.nan, np.nan)
-    return (float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0)
+def _column(runs: pd.DataFrame, name: str, default: str) -> pd.Series:
+    if name not in runs:
+        return pd.Series(default, index=runs.index)
+    return runs[name].fillna(default).replace("", default)
+
+
+def _select_runs(
+    runs: pd.DataFrame, frame: str, data_version: str | None, all_variants: bool
+) -> tuple[pd.DataFrame, str, list[str]]:
+    """The runs of one table: one frame, one data version, the newest run per (variant, context,
+    seed), and (unless ``all_variants``) the newest variant per label. Returns them, the chosen
+    fingerprint and what was left out, in words."""
+    left_out: list[str] = []
+    legacy = runs["variant.key"].isna() if "variant.key" in runs else pd.Series(True, runs.index)
+    if legacy.any():
+        left_out.append(
+            f"{int(legacy.sum())} runs logged before variant keys were recorded (rerun them)"
+        )
+    runs = runs[~legacy].copy()
+    runs["_frame"] = _column(runs, "protocol.frame", DEFAULT_FRAME)
+    other_frame = runs[runs["_frame"] != frame]
+    if len(other_frame):
+        frames = ", ".join(sorted(other_frame["_frame"].unique()))
+        left_out.append(f"{len(other_frame)} runs in another frame ({frames}; --frame)")
+    runs = runs[runs["_frame"] == frame]
+    if runs.empty:
+        return runs, "", left_out
+    versions = runs.groupby("dataset.fingerprint")["start"].max().sort_values(ascending=False)
+    if data_version:
+        matches = [v for v in versions.index if str(v).startswith(data_version)]
+        if len(matches) != 1:
+            listing = ", ".join(str(v) for v in versions.index)
+            raise ShapebenchError(
+                f"--data-version {data_version!r} matches {len(matches)} of the data versions "
+                f"with runs: {listing}",
+                "give a prefix of exactly one fingerprint",
+            )
+        fingerprint = matches[0]
+    else:
+        fingerprint = versions.index[0]
+    others = runs[runs["dataset.fingerprint"] != fingerprint]
+    if len(others):
+        counts = others.groupby("dataset.fingerprint").size()
+        roots = others.groupby("dataset.fingerprint")["dataset.data_root"].first() if (
+            "dataset.data_root" in others) else pd.Series(dtype=str)  # fmt: skip
+        listed = "; ".join(
+            f"{fp} ({n} runs{', ' + roots[fp] if fp in roots and roots[fp] else ''})"
+            for fp, n in counts.items()
+        )
+        left_out.append(f"runs on other data versions: {listed} (--data-version FINGERPRINT)")
+    runs = runs[runs["dataset.fingerprint"] == fingerprint]
+    runs = runs.drop_duplicates(subset=["variant.key", "context_size", "seed"], keep="first")
+    runs["_label"] = _column(runs, "variant.label", "")
+    runs.loc[runs["_label"] == "", "_label"] = runs["method"]
+    newest = runs.groupby("_label")["start"].transform("max")
+    variant_newest = runs.groupby("variant.key")["start"].transform("max")
+    older = variant_newest < newest  # an older variant under a label a newer one uses
+    if older.any():
+        if all_variants:
+            runs.loc[older, "_label"] = (
+                runs.loc[older, "_label"] + "#" + runs.loc[older, "variant.key"].str[:6]
+            )
+        else:
+            n_var = runs.loc[older, "variant.key"].nunique()
+            left_out.append(
+                f"{n_var} older variant(s) sharing a label with a newer one (code, checkpoint "
+                "or version changed; --all-variants shows them)"
+            )
+            runs = runs[~older]
+    return runs, str(fingerprint), left_out
+
+
+def _rows(runs: pd.DataFrame) -> list[Row]:
+    rows = []
+    for key, g in runs.groupby("variant.key"):
+        first = g.sort_values("start").iloc[-1]
+        overrides = json.loads(first.get("variant.overrides") or "{}")
+        display = first.get("method.display_name") or first["method"]
+        if overrides.get("+normals"):  # never under the paper's row name
+            display = f"{display} + test-time normals"
+        rows.append(Row(str(key), first["_label"], first["method"], display, overrides,
+                        str(first.get("method.code") or ""),
+                        str(first.get("checkpoint_key") or "")))  # fmt: skip
+
+    def rank(row: Row) -> tuple[int, str]:
+        base = row.display
+        return (PAPER_METHOD_ORDER.index(base) if base in PAPER_METHOD_ORDER else 99, row.label)
+
+    return sorted(rows, key=rank)
 
 
 def build_board(
-    tracker: Tracker, dataset: str, split: str, reference: str, metric: str | None
+    tracker: Tracker,
+    dataset: str,
+    split: str,
+    reference: str,
+    metric: str | None,
+    frame: str = DEFAULT_FRAME,
+    data_version: str | None = None,
+    all_variants: bool = False,
 ) -> Board | None:
     exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
     if exp_id is None:
@@ -109,20 +213,17 @@ def build_board(
     runs = _load_runs(tracker, exp_id)
     if runs.empty:
         return None
-    # One data version per table: the one of the newest run; older versions are left out.
-    fingerprint = runs.iloc[0]["dataset.fingerprint"]
-    same = runs[runs["dataset.fingerprint"] == fingerprint]
-    left_out = len(runs) - len(same)
-    # The newest finished run of each cell wins (a --force rerun replaces the older one).
-    latest = same.drop_duplicates(subset=["method", "context_size", "seed"], keep="first").copy()
+    runs, fingerprint, left_out = _select_runs(runs, frame, data_version, all_variants)
+    if runs.empty:
+        return None
     if metric is None:
-        metric = _default_metric(latest)
+        metric = _default_metric(runs)
     card_col = f"card.{metric}"
-    if card_col not in latest:
+    if card_col not in runs or runs[card_col].isna().all():
         raise ShapebenchError(
             f"no run of {dataset}-{split} recorded metric {metric!r}", "pick another with --metric"
         )
-    cards = latest.groupby(card_col)["method"].agg(lambda s: sorted(set(s)))
+    cards = runs.groupby(card_col)["_label"].agg(lambda s: sorted(set(s)))
     if len(cards) > 1:
         listing = "; ".join(f"[{_card_text(c)}] used by {', '.join(m)}" for c, m in cards.items())
         raise ShapebenchError(
@@ -131,70 +232,52 @@ def build_board(
             "rerun the odd ones with the same dataset options (shapebench run ... --force)",
         )
     card = cards.index[0]
-    latest["_display"] = latest["method.display_name"].fillna(latest["method"])
-    per_obj = _per_object(tracker, latest, metric)
-    scale = float(dict(i.split("=", 1) for i in card.split(";")).get("scale", 1.0))
-    contexts = sorted(per_obj["context"].unique().tolist())
-
-    raw_rows = []
-    for (method, display, ctx), g in per_obj.groupby(["method", "display", "context"]):
-        ok = g[g.status == "ok"]["value"]
-        mean, std = _aggregate(ok)
-        raw_rows.append(
-            {
-                "method": method,
-                "display": display,
-                "context": ctx,
-                "mean": mean * scale,
-                "std": std * scale,
-                "n": len(g),
-                "failures": int((g.status != "ok").sum()),
-            }
-        )
-    raw = pd.DataFrame(raw_rows)
-
+    higher = _higher_is_better(metric)
+    per_obj = _per_object(tracker, runs, metric)
+    scored = board_stats.with_failure_rule(per_obj, higher)
+    raw = board_stats.raw_table(scored)
+    scale = _scale(card)
+    for col in ("mean", "std", "mean_ok", "std_ok"):
+        raw[col] = raw[col] * scale
+    rows = _rows(runs)
+    ref_row = next((r for r in rows if r.label == reference), None)
     normalized, note = None, ""
-    ref = per_obj[(per_obj.method == reference) & (per_obj.status == "ok")]
-    if ref.empty:
+    if ref_row is None:
         note = (
-            f"No runs of the reference method {reference!r} in this experiment, so there is no "
-            f"normalised table. Run it, or choose another reference with --reference "
-            f"(methods with runs: {', '.join(sorted(per_obj.method.unique()))})."
+            f"No runs of the reference {reference!r} in this table, so there is no normalised "
+            f"table. Run it, or choose another reference with --reference (rows: "
+            f"{', '.join(r.label for r in rows)})."
         )
     else:
-        ref = ref[["context", "seed", "object", "value"]].rename(columns={"value": "ref"})
-        merged = per_obj.merge(ref, on=["context", "seed", "object"], how="left")
-        norm_rows = []
-        for (method, display, ctx), g in merged.groupby(["method", "display", "context"]):
-            usable = g[(g.status == "ok") & g.ref.notna() & (g.ref > 0)]
-            mean, std = _aggregate(usable["value"] / usable["ref"])
-            norm_rows.append(
-                {
-                    "method": method,
-                    "display": display,
-                    "context": ctx,
-                    "mean": mean,
-                    "std": std,
-                    "n": len(usable),
-                    "failures": len(g) - len(usable),
-                }
-            )
-        normalized = pd.DataFrame(norm_rows)
-    return Board(
-        dataset,
-        split,
-        metric,
-        card,
-        reference,
-        contexts,
-        raw,
-        normalized,
-        note,
-        paper_table(dataset, split),
-        exp_id,
-        fingerprint,
-        left_out,
+        normalized = board_stats.normalized_table(scored, ref_row.variant)
+    root = runs["dataset.data_root"].dropna().iloc[0] if "dataset.data_root" in runs else ""
+    protocol = (
+        "contexts carry points only"
+        if not any(r.overrides.get("+normals") for r in rows)
+        else "contexts carry points only, except rows marked +normals (points and normals)"
     )
+    return Board(
+        dataset, split, metric, card, reference, sorted(raw["context"].unique().tolist()),
+        rows, raw, normalized, board_stats.significance(scored, higher), note,
+        paper_table(dataset, split), exp_id, fingerprint, str(root or ""), frame, protocol,
+        left_out,
+    )  # fmt: skip
+
+
+def _scale(card: str) -> float:
+    try:
+        return MetricCard.from_tag(card).scale
+    except ValueError:
+        return 1.0
+
+
+def _higher_is_better(metric: str) -> bool:
+    from shapebench.registry import get_registry
+
+    try:
+        return bool(get_registry().load("metric", metric).higher_is_better)
+    except ShapebenchError:
+        return False
 
 
 def _default_metric(runs: pd.DataFrame) -> str:
@@ -207,44 +290,69 @@ def _default_metric(runs: pd.DataFrame) -> str:
         return "chamfer-l2"
 
 
-def _order(methods: pd.DataFrame) -> list[tuple[str, str]]:
-    pairs = sorted(set(zip(methods["method"], methods["display"], strict=True)))
+def _cell(board: Board, row: Row, ctx: int) -> str:
+    r = board.raw[(board.raw.variant == row.variant) & (board.raw.context == ctx)]
+    if r.empty:
+        return "–"
+    r = r.iloc[0]
+    if r["n_ok"] == 0:
+        return f"failed (0/{int(r['n'])})"
+    text = f"{r['mean']:.2f} ± {r['std']:.2f}"
+    sig = board.significance[
+        (board.significance.variant == row.variant) & (board.significance.context == ctx)
+    ]
+    if not sig.empty and bool(sig.iloc[0]["best"]):
+        text = f"**{text}**"
+    elif not sig.empty and bool(sig.iloc[0]["tied"]):
+        text += " ≈"
+    if r["failures"]:
+        text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
+    return text
 
-    def rank(pair: tuple[str, str]) -> tuple[int, str]:
-        display = pair[1]
-        return (PAPER_METHOD_ORDER.index(display) if display in PAPER_METHOD_ORDER else 99, display)
 
-    return sorted(pairs, key=rank)
-
-
-def _cell(df: pd.DataFrame | None, method: str, ctx: int, fmt: str = "{:.2f} ± {:.2f}") -> str:
+def _norm_cell(board: Board, row: Row, ctx: int) -> str:
+    if row.label == board.reference:
+        return "1"
+    df = board.normalized
     if df is None or df.empty:
         return "–"
-    row = df[(df.method == method) & (df.context == ctx)]
-    if row.empty or np.isnan(row.iloc[0]["mean"]):
+    r = df[(df.variant == row.variant) & (df.context == ctx)]
+    if r.empty or np.isnan(r.iloc[0]["mean"]):
         return "–"
-    return fmt.format(row.iloc[0]["mean"], row.iloc[0]["std"])
+    return f"{r.iloc[0]['mean']:.2f} ± {r.iloc[0]['std']:.2f}"
+
+
+def _fmt_overrides(overrides: dict) -> str:
+    if not overrides:
+        return "the profile's defaults"
+    return ", ".join(f"{k}={v}" if v is not True else k for k, v in sorted(overrides.items()))
 
 
 def render_markdown(board: Board, command: str, uri: str) -> str:
     ctxs = board.contexts
-    scale_txt = "x1000" if "scale=1000" in board.card else ""
+    card = MetricCard.from_tag(board.card) if "=" in board.card else None
+    scale_txt = f"x{card.scale:g}" if card and card.scale != 1 else ""
+    version = f"dataset fingerprint `{board.fingerprint}`"
+    if board.data_root:
+        version += f", data root `{board.data_root}`"
     lines = [
-        f"# {board.dataset} / {board.split}: {board.metric}",
+        f"# {board.dataset} / {board.split}: {board.metric} ({board.frame} frame)",
         "",
         f"Generated {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC} by `{command}` from the "
         f"MLflow runs of experiment `{experiment_name(board.dataset, board.split)}` "
-        f"(id {board.experiment_id}) in `{uri}`; dataset fingerprint `{board.fingerprint}`.",
+        f"(id {board.experiment_id}) in `{uri}`; {version}.",
         "",
         f"**Metric card**: {_card_text(board.card)}.",
+        "",
+        f"**Protocol**: {board.protocol}; distances in the {FRAMES[board.frame][1]}.",
         "",
         f"Raw: mean ± std over objects of {board.metric} {scale_txt}. Normalised: per object "
         f"divided by `{board.reference}` on the same object and context size, then mean ± std "
         "(the paper's eq. 8).",
         "",
     ]
-    if board.left_out:
-        lines += [f"{board.left_out} runs on other versions of the dataset were left out.", ""]
+    for item in board.left_out:
+        lines += [f"Left out: {item}.", ""]
     header = (
         ["Method"]
         + [f"raw {c}" for c in ctxs]
@@ -252,84 +360,123 @@ def render_markdown(board: Board, command: str, uri: str) -> str:
         + ["objects", "failed (per context)"]
     )
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for method, display in _order(board.raw):
-        raw = board.raw[board.raw.method == method]
+    for row in board.rows:
+        raw = board.raw[board.raw.variant == row.variant]
         n = int(raw["n"].max())
-        fails = "/".join(str(int(raw[raw.context == c]["failures"].sum())) for c in ctxs)
-        cells = [_cell(board.raw, method, c) for c in ctxs] + [
-            _cell(board.normalized, method, c) if method != board.reference else "1" for c in ctxs
-        ]
-        lines.append(f"| {display} (`{method}`) | " + " | ".join(cells) + f" | {n} | {fails} |")
-    if not board.paper.empty:
-        lines += [
-            "",
-            "**The paper's figures** (as published; not rerun here):",
-            "",
-            "| " + " | ".join(header[:-2]) + " |",
-            "|" + "---|" * (len(header) - 2),
-        ]
-        for display in PAPER_METHOD_ORDER:
-            rows = board.paper[board.paper.method == display]
-            if rows.empty:
-                continue
-            cells = []
-            for kind in ("raw_x1000", "normalized"):
-                for c in ctxs:
-                    r = rows[(rows.kind == kind) & (rows.context == c)]
-                    if r.empty:
-                        cells.append("–")
-                    elif np.isnan(r.iloc[0]["std"]):
-                        cells.append(f"{r.iloc[0]['mean']:.2f}")
-                    else:
-                        cells.append(f"{r.iloc[0]['mean']:.2f} ± {r.iloc[0]['std']:.2f}")
-            lines.append(f"| {display} (paper) | " + " | ".join(cells) + " |")
+        fails = "/".join(
+            str(int(raw[raw.context == c]["failures"].sum())) if c in set(raw.context) else "–"
+            for c in ctxs
+        )
+        cells = [_cell(board, row, c) for c in ctxs] + [_norm_cell(board, row, c) for c in ctxs]
+        name = f"{row.display} (`{row.label}`)"
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {n} | {fails} |")
+    direction = "highest" if _higher_is_better(board.metric) else "lowest"
+    lines += [
+        "",
+        f"**Bold**: the {direction} mean at that context size; ≈: not significantly different "
+        f"from it ({board_stats.TEST_NAME} across the rows at that size, α = "
+        f"{board_stats.ALPHA}); p-values are in the CSV (`p_vs_best`, `p_holm`). A failed object "
+        "scores as the worst successful score of its cell, (n_ok/n ok) says how many succeeded, "
+        "and the success-only mean is in the CSV (`mean_ok`).",
+        "",
+        "Rows (options that differ from the profile's defaults):",
+        "",
+    ]
+    for row in board.rows:
+        extra = f"; code `{row.code}`" if row.code else ""
+        if row.checkpoint:
+            extra += f"; checkpoint `{row.checkpoint[:16]}`"
+        lines.append(f"* `{row.label}`: {row.method}, {_fmt_overrides(row.overrides)}{extra}")
+    lines += _paper_section(board, header)
     if board.note:
         lines += ["", f"> {board.note}"]
     return "\n".join(lines) + "\n"
 
 
+def _paper_section(board: Board, header: list[str]) -> list[str]:
+    if board.paper.empty:
+        return []
+    if board.frame != PAPER_FRAME:
+        return [
+            "",
+            f"> The paper's figures are on the {PAPER_FRAME} scale (see docs/metrics.md), not "
+            f"this table's: run with `--frame {PAPER_FRAME}` and build this leaderboard with "
+            f"`--frame {PAPER_FRAME}` to see them beside ours.",
+        ]
+    ctxs = board.contexts
+    lines = [
+        "",
+        "**The paper's figures** (as published, not rerun here; comparable with the table above "
+        "in magnitude, on the same frame and card):",
+        "",
+        "| " + " | ".join(header[:-2]) + " |",
+        "|" + "---|" * (len(header) - 2),
+    ]
+    for display in PAPER_METHOD_ORDER:
+        rows = board.paper[board.paper.method == display]
+        if rows.empty:
+            continue
+        cells = []
+        for kind in ("raw_x1000", "normalized"):
+            for c in ctxs:
+                r = rows[(rows.kind == kind) & (rows.context == c)]
+                if r.empty:
+                    cells.append("–")
+                elif np.isnan(r.iloc[0]["std"]):
+                    cells.append(f"{r.iloc[0]['mean']:.2f}")
+                else:
+                    cells.append(f"{r.iloc[0]['mean']:.2f} ± {r.iloc[0]['std']:.2f}")
+        lines.append(f"| {display} (paper) | " + " | ".join(cells) + " |")
+    return lines
+
+
 def tidy_csv(board: Board) -> pd.DataFrame:
+    labels = {r.variant: r for r in board.rows}
     frames = []
-    for kind, df in (("raw", board.raw), ("normalized", board.normalized)):
-        if df is not None and not df.empty:
-            frames.append(df.assign(source="shapebench", kind=kind))
-    if not board.paper.empty:
+    raw = board.raw.merge(board.significance, on=["variant", "context"], how="left")
+    frames.append(raw.assign(source="shapebench", kind="raw"))
+    if board.normalized is not None and not board.normalized.empty:
+        frames.append(board.normalized.assign(source="shapebench", kind="normalized"))
+    out = pd.concat(frames, ignore_index=True)
+    out["method"] = out["variant"].map(lambda v: labels[v].method if v in labels else "")
+    out["display"] = out["variant"].map(lambda v: labels[v].display if v in labels else "")
+    show_paper = board.frame == PAPER_FRAME and not board.paper.empty
+    if show_paper:
         p = board.paper.rename(columns={"method": "display"})
         p = p.assign(
             source="paper",
             method="",
-            n=np.nan,
-            failures=np.nan,
+            label="",
+            variant="",
             kind=p.kind.map({"raw_x1000": "raw", "normalized": "normalized"}),
         )
-        frames.append(
-            p[["source", "method", "display", "context", "kind", "mean", "std", "n", "failures"]]
-        )
-    out = pd.concat(frames, ignore_index=True)
+        out = pd.concat([out, p[["source", "display", "context", "kind", "mean", "std",
+                                 "method", "label", "variant"]]],
+                        ignore_index=True)  # fmt: skip
     out = out.assign(
         dataset=board.dataset,
         split=board.split,
         metric=board.metric,
         reference=board.reference,
         card=board.card,
+        frame=board.frame,
+        fingerprint=board.fingerprint,
     )
     cols = [
-        "source",
-        "dataset",
-        "split",
-        "metric",
-        "kind",
-        "method",
-        "display",
-        "context",
-        "mean",
-        "std",
-        "n",
-        "failures",
-        "reference",
-        "card",
-    ]
+        "source", "dataset", "split", "metric", "frame", "fingerprint", "kind", "method", "label",
+        "variant", "display", "context", "mean", "std", "mean_ok", "std_ok", "n", "n_ok",
+        "failures", "best", "tied", "p_vs_best", "p_holm", "n_pairs", "reference", "card",
+    ]  # fmt: skip
+    for c in cols:
+        if c not in out:
+            out[c] = np.nan
     return out[cols]
+
+
+def board_path(out_dir: Path, dataset: str, split: str, frame: str) -> Path:
+    """``<dataset>-<split>.md``, with the frame in the name unless it is the default."""
+    suffix = "" if frame == DEFAULT_FRAME else f"-{frame}"
+    return out_dir / f"{dataset}-{split}{suffix}.md"
 
 
 def build_leaderboards(
@@ -339,6 +486,9 @@ def build_leaderboards(
     reference: str,
     metric: str | None,
     out_dir: Path,
+    frame: str = DEFAULT_FRAME,
+    data_version: str | None = None,
+    all_variants: bool = False,
 ) -> list[Path]:
     tracker = Tracker(settings)
     if splits is None:
@@ -348,11 +498,13 @@ def build_leaderboards(
     command = "shapebench " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     written = []
     for split in splits:
-        board = build_board(tracker, dataset, split, reference, metric)
+        board = build_board(
+            tracker, dataset, split, reference, metric, frame, data_version, all_variants
+        )
         if board is None:
             continue
         out_dir.mkdir(parents=True, exist_ok=True)
-        md = out_dir / f"{dataset}-{split}.md"
+        md = board_path(out_dir, dataset, split, frame)
         md.write_text(render_markdown(board, command, settings.tracking_uri))
         csv = md.with_suffix(".csv")
         tidy_csv(board).to_csv(csv, index=False)
@@ -361,7 +513,8 @@ def build_leaderboards(
         raise ShapebenchError(
             f"no finished runs of dataset {dataset!r}"
             + (f" (splits {', '.join(splits)})" if splits else "")
-            + f" in {settings.tracking_uri}",
-            f"run one first: shapebench run --method gauss --dataset {dataset}",
+            + f" in the {frame} frame in {settings.tracking_uri}",
+            f"run one first: shapebench run --method gauss --dataset {dataset}"
+            + (f" --frame {frame}" if frame != DEFAULT_FRAME else ""),
         )
     return written

@@ -94,6 +94,10 @@ class Method(ABC):
     #: completion time). Options marked ``metadata={"completion_only": True}`` do not change the
     #: checkpoint either.
     checkpoint_family: ClassVar[str] = ""
+    #: Modules besides the class's own package whose source changes results (shared training
+    #: code the method imports); their code is hashed into cell and checkpoint keys together with
+    #: the packages of the class and its bases (see :mod:`shapebench.code_digest`).
+    code_modules: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, options: Any | None = None) -> None:
         self.options = options if options is not None else self.Options()

@@ -9,12 +9,15 @@ different cards in one table.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from typing import ClassVar, Literal
 
+from shapebench.protocol import DEFAULT_FRAME, frame_description
 from shapebench.types import Completion, Context, ObjectData
 
-UNIT_SPHERE_FRAME = "unit-sphere (centre of mass at origin, max vertex distance 1)"
+#: The frame metrics are defined in; the runner sets the card's frame to the run's protocol frame
+#: (see :mod:`shapebench.protocol`), since it scales shapes into that frame before scoring.
+UNIT_SPHERE_FRAME = DEFAULT_FRAME
 
 
 @dataclass(frozen=True)
@@ -27,7 +30,8 @@ class MetricCard:
                   how well the prediction covers the ground truth).
     halved:       whether the symmetric sum is multiplied by 1/2.
     scale:        the factor values are *displayed* with (1000 means "x1000"); logged raw.
-    frame:        the normalisation of shapes the distances are measured in.
+    frame:        the normalisation of shapes the distances are measured in: ``unit-radius``
+                  or ``unit-diameter`` (set by the runner from the protocol's ``--frame``).
     eval_points:  number of ground-truth points (and points sampled from predicted meshes).
     """
 
@@ -51,11 +55,36 @@ class MetricCard:
             half = ", halved" if self.halved else ""
             body = f"{dist} NN distances, {self.reduction} per set, {both}{half}"
         scale = f"x{self.scale:g}" if self.scale != 1 else "x1"
-        return f"{self.metric}: {body}; shown {scale}; {self.frame}; {self.eval_points} eval points"
+        frame = frame_description(self.frame)
+        return f"{self.metric}: {body}; shown {scale}; {frame}; {self.eval_points} eval points"
 
     def as_tag(self) -> str:
         """A stable string form for MLflow tags and equality checks."""
         return ";".join(f"{k}={v}" for k, v in asdict(self).items())
+
+    @classmethod
+    def from_tag(cls, tag: str) -> MetricCard:
+        """The card :meth:`as_tag` wrote; ``ValueError`` if the tag is not one."""
+        try:
+            values = dict(item.split("=", 1) for item in tag.split(";"))
+            types = {f.name: f.type for f in fields(cls)}
+            parsed = {}
+            for name, value in values.items():
+                kind = types[name]
+                if kind == "int":
+                    parsed[name] = int(value)
+                elif kind == "float":
+                    parsed[name] = float(value)
+                elif kind == "bool":
+                    parsed[name] = value == "True"
+                else:
+                    parsed[name] = value
+            return cls(**parsed)
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ValueError(f"not a metric card tag: {tag!r}") from exc
+
+    def in_frame(self, frame: str) -> MetricCard:
+        return replace(self, frame=frame)
 
 
 class Metric(ABC):

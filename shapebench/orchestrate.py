@@ -12,12 +12,20 @@ from shapebench.config import Settings
 from shapebench.dataset import Dataset
 from shapebench.errors import ShapebenchError
 from shapebench.method import Method, TrainerOptions
+from shapebench.protocol import Protocol
 from shapebench.registry import get_registry
 from shapebench.resolve import ResolvedMethod, resolve_dataset, resolve_method, resolve_metrics
 from shapebench.runner import CellResult, Runner, RunPlan, validate_contexts
 from shapebench.tracking import Tracker
-from shapebench.training import checkpoint_key, ensure_checkpoint
+from shapebench.training import (
+    apply_trainer,
+    checkpoint_key,
+    ensure_checkpoint,
+    profile_trainer,
+    training_identity,
+)
 from shapebench.types import TRAIN
+from shapebench.variant import Variant, make_variant
 
 
 @dataclass
@@ -34,6 +42,8 @@ class EvalRequest:
     checkpoint: str | None = None
     force: bool = False
     quiet: bool = False
+    protocol: Protocol = field(default_factory=Protocol)
+    label: str | None = None
 
 
 @dataclass
@@ -42,6 +52,12 @@ class EvalOutcome:
     dataset: Dataset
     primary_metric: str
     cells: list[CellResult]
+    variant: Variant | None = None
+
+    @property
+    def all_failed_cells(self) -> list[CellResult]:
+        """Cells in which no object could be scored: the run must not look successful."""
+        return [c for c in self.cells if c.n_objects and c.n_ok == 0]
 
 
 def _check_splits(dataset: Dataset, splits: list[str] | None) -> list[str]:
@@ -53,12 +69,20 @@ def _check_splits(dataset: Dataset, splits: list[str] | None) -> list[str]:
             f"dataset {dataset.name!r} has no evaluation split {', '.join(unknown)}",
             f"use one of: {', '.join(dataset.eval_splits)}",
         )
+    empty = [s for s in splits if not dataset.objects(s)]
+    if empty:  # asked for by name: an empty split is a mistake, not something to skip quietly
+        notes = "; ".join(n for s in empty for n in dataset.selection_notes(s))
+        raise ShapebenchError(
+            f"split {', '.join(empty)} of dataset {dataset.name!r} has no objects"
+            + (f" ({notes})" if notes else ""),
+            "check the dataset options that select objects (shapebench datasets lists them)",
+        )
     return splits
 
 
 def _given_checkpoint_key(path: str) -> str:
     st = os.stat(path)
-    return f"file:{Path(path).resolve()}:{st.st_size}:{int(st.st_mtime)}"
+    return f"{Path(path).resolve()}:{st.st_size}:{int(st.st_mtime)}"
 
 
 def evaluate(
@@ -95,22 +119,59 @@ def evaluate(
     tracker = tracker or Tracker(settings)  # an unreachable server fails here, before any work
     runner = Runner(tracker)
     cells: list[CellResult] = []
+    variant = None
     for seed in req.seeds:
-        checkpoint: dict[str, str] = {}
+        trainer = trainer_for_seed(seed)
+        seed_method = apply_trainer(method, trainer) if method.cls.trains else method
+        checkpoint: dict[str, Any] = {}
+        training = None
         if method.cls.trains:
-            checkpoint["key"] = (
-                _given_checkpoint_key(req.checkpoint)
-                if req.checkpoint
-                else checkpoint_key(method, dataset, seed)
-            )
+            if req.checkpoint:
+                checkpoint["key"] = _given_checkpoint_key(req.checkpoint)
+            else:
+                checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
+                training = training_identity(seed_method, trainer)
+                checkpoint["training"] = training
+        variant = _variant(seed_method, dataset, req, settings, trainer, training)
         plan = RunPlan(
-            method, dataset, splits, contexts, [seed], metrics, req.force, req.quiet, checkpoint
-        )
+            seed_method, dataset, splits, contexts, [seed], metrics, req.force, req.quiet,
+            checkpoint, req.protocol, variant,
+        )  # fmt: skip
         cells += runner.run(
             plan,
-            _method_factory(method, dataset, req, settings, trainer_for_seed(seed), checkpoint),
+            _method_factory(seed_method, dataset, req, settings, trainer, checkpoint),
         )
-    return EvalOutcome(method, dataset, primary, cells)
+    return EvalOutcome(method, dataset, primary, cells, variant)
+
+
+def _variant(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    req: EvalRequest,
+    settings: Settings,
+    trainer: TrainerOptions,
+    training: dict[str, Any] | None,
+) -> Variant:
+    """The leaderboard row of this run (see :mod:`shapebench.variant`)."""
+    training_overrides: dict[str, Any] = {}
+    if training is not None:
+        training = {k: v for k, v in training.items() if k != "seed"}
+        base = training_identity(method, profile_trainer(settings, trainer.seed))
+        training_overrides = {
+            k: v for k, v in training.items() if k != "epochs" and base.get(k) != v
+        }  # epochs already shows as the method's option
+    return make_variant(
+        method.name,
+        method.config(),
+        method.overrides(),
+        req.protocol,
+        settings.profile_name,
+        training=training,
+        training_overrides=training_overrides,
+        train_data=dataset.training_fingerprint() if training is not None else None,
+        checkpoint_file=_given_checkpoint_key(req.checkpoint) if req.checkpoint else None,
+        label=req.label,
+    )
 
 
 def _method_factory(

@@ -24,7 +24,7 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
     by_split = defaultdict(list)
     for cell in outcome.cells:
         by_split[cell.split].append(cell)
-    name = outcome.method.name
+    name = outcome.variant.label if outcome.variant else outcome.method.name
     for split, cells in by_split.items():
         exp_id = cells[0].experiment_id
         click.echo("")
@@ -43,9 +43,20 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
             )
         failed = sum(int(c.metrics.get("failures", 0)) for c in cells)
         if failed:
+            click.secho(f"  {failed} object evaluations failed", fg="yellow")
+        for c in sorted(cells, key=lambda c: (c.seed, c.context_size)):
+            if not c.reasons:
+                continue
+            everything = c.n_ok == 0
             click.secho(
-                f"  {failed} object evaluations failed: see per_object.csv in each run", fg="yellow"
+                f"  k={c.context_size} seed={c.seed}: "
+                + ("EVERY object failed" if everything else f"{c.n_objects - c.n_ok} failed")
+                + "; most common reasons:",
+                fg="red" if everything else "yellow",
             )
+            for reason, count in c.reasons:
+                click.echo(f"    {count} x {reason}")
+            click.echo(f"    per-object table: {c.table_uri}")
         click.echo(f"  MLflow experiment {outcome.dataset.name}-{split} (id {exp_id})")
     click.echo("")
     click.echo(f"Runs are in {settings.tracking_uri}")

@@ -21,6 +21,9 @@ class ResolvedMethod:
     registration: Registration
     cls: type[Method]
     options: Any
+    #: The options before the run's own overrides (plugin defaults, config file, profile):
+    #: what a leaderboard row's label is relative to.
+    base_options: Any = None
 
     @property
     def name(self) -> str:
@@ -30,6 +33,12 @@ class ResolvedMethod:
     def display_name(self) -> str:
         return self.cls.display_name or self.name
 
+    def code(self) -> str:
+        """Digest of the source the method's results depend on (see shapebench.code_digest)."""
+        from shapebench.code_digest import code_digest
+
+        return code_digest(self.cls)
+
     def config(self) -> dict[str, Any]:
         plugin = self.registration.plugin
         return {
@@ -37,7 +46,22 @@ class ResolvedMethod:
             "options": opts.as_dict(self.options),
             "distribution": plugin.distribution,
             "version": plugin.version,
+            "code": self.code(),
         }
+
+    def overrides(self) -> dict[str, Any]:
+        """The options this run sets differently from the profile's defaults."""
+        if self.base_options is None:
+            return {}
+        base, final = opts.as_dict(self.base_options), opts.as_dict(self.options)
+        return {k: v for k, v in final.items() if base.get(k) != v}
+
+    def with_options(self, **changes: Any) -> ResolvedMethod:
+        from dataclasses import replace
+
+        return ResolvedMethod(
+            self.registration, self.cls, replace(self.options, **changes), self.base_options
+        )
 
     def training_config(self) -> dict[str, Any]:
         """What determines a training's result: options that only affect completion are left out."""
@@ -54,6 +78,7 @@ class ResolvedMethod:
             "options": opts_dict,
             "distribution": plugin.distribution,
             "version": plugin.version,
+            "code": self.code(),
         }
 
     def instantiate(self) -> Method:
@@ -66,9 +91,10 @@ def resolve_method(
     reg = registry.get("method", name)
     cls = reg.load()
     values = plugin_overrides("method", name, settings.profile)
+    base = opts.build(cls.Options, values, f"method {name!r}")
     for o in overrides:
         values.update(o or {})
-    return ResolvedMethod(reg, cls, opts.build(cls.Options, values, f"method {name!r}"))
+    return ResolvedMethod(reg, cls, opts.build(cls.Options, values, f"method {name!r}"), base)
 
 
 def resolve_dataset(

@@ -28,13 +28,15 @@ from shapebench.errors import ShapebenchError
 from shapebench.hashing import stable_hash
 from shapebench.method import Method
 from shapebench.metric import Metric
+from shapebench.protocol import Protocol
 from shapebench.provenance import git_commit
 from shapebench.resolve import ResolvedMethod
 from shapebench.tracking import CELL_KIND, PARENT_KIND, Tracker, experiment_name, flatten
 from shapebench.types import Completion, Context, ObjectData, ObjectRef
+from shapebench.variant import Variant
 
-PROTOCOL_VERSION = "1"
 EXAMPLE_PLYS = 3  # completed point clouds logged per cell, for a look in the MLflow UI
+TOP_REASONS = 3  # distinct failure reasons printed per cell
 
 
 @dataclass
@@ -46,6 +48,18 @@ class CellResult:
     skipped: bool
     metrics: dict[str, float]
     experiment_id: str
+    #: The most common failure reasons of this cell with their counts (new cells only).
+    reasons: list[tuple[str, int]] = field(default_factory=list)
+    #: Where the per-object table is (an artifact URI).
+    table_uri: str = ""
+
+    @property
+    def n_objects(self) -> int:
+        return int(self.metrics.get("n_objects", 0))
+
+    @property
+    def n_ok(self) -> int:
+        return self.n_objects - int(self.metrics.get("failures", 0))
 
 
 @dataclass
@@ -58,7 +72,9 @@ class RunPlan:
     metrics: list[Metric]
     force: bool = False
     quiet: bool = False
-    checkpoint: dict[str, str] = field(default_factory=dict)  # key/path/run id when trained
+    checkpoint: dict[str, Any] = field(default_factory=dict)  # key/path/run id when trained
+    protocol: Protocol = field(default_factory=Protocol)
+    variant: Variant | None = None
 
 
 def validate_contexts(contexts: list[int]) -> list[int]:
@@ -71,18 +87,30 @@ def validate_contexts(contexts: list[int]) -> list[int]:
 
 
 def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: int) -> dict:
-    """Everything that determines a cell's result; its hash is the cell key."""
+    """Everything that determines a cell's result; its hash is the cell key. The method part
+    holds a digest of its code, and the checkpoint key the training settings and data."""
+    frame = plan.protocol.frame
     return {
-        "protocol": PROTOCOL_VERSION,
+        "protocol": plan.protocol.config(),
         "method": plan.method.config(),
         "dataset": plan.dataset.config(),
         "split": split,
         "context_size": size,
         "seed": seed,
         "contexts": CONTEXTS_VERSION,
-        "metrics": {m.name: m.card(eval_points).as_tag() for m in plan.metrics},
+        "metrics": {m.name: m.card(eval_points).in_frame(frame).as_tag() for m in plan.metrics},
         "checkpoint": plan.checkpoint.get("key"),
+        "training": plan.checkpoint.get("training"),
     }
+
+
+def failure_reasons(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int]]:
+    """The most common failure messages of a per-object table, with their counts."""
+    if "status" not in table or "error" not in table:
+        return []
+    failed = table[table["status"] != "ok"]["error"].fillna("").astype(str)
+    counts = failed.map(lambda e: e.splitlines()[0][:200] if e else "unknown").value_counts()
+    return [(str(reason), int(n)) for reason, n in counts.head(top).items()]
 
 
 class ObjectCache:
@@ -153,10 +181,33 @@ def _valid_points(completion: Any) -> str | None:
     return None
 
 
+def scaled(data: ObjectData, ctx: Context, completion: Completion, factor: float):
+    """Copies of what metrics read, with every coordinate multiplied by ``factor`` (the
+    protocol's evaluation frame); the originals, and the caches built on them, are untouched."""
+    from dataclasses import replace
+
+    if factor == 1.0:
+        return data, ctx, completion
+    sdata = replace(data, gt_points=data.gt_points * factor,
+                    surface_points=data.surface_points * factor, cache={})  # fmt: skip
+    sctx = replace(ctx, points=ctx.points * factor)
+    scomp = Completion(
+        points=(completion.points * factor).astype(np.float32),
+        samples=[s * factor for s in completion.samples] if completion.samples else None,
+        info=completion.info,
+    )
+    return sdata, sctx, scomp
+
+
 def score(
-    outcome: Completion | Exception, data: ObjectData, ctx: Context, metrics: list[Metric]
+    outcome: Completion | Exception,
+    data: ObjectData,
+    ctx: Context,
+    metrics: list[Metric],
+    frame_scale: float = 1.0,
 ) -> tuple[dict[str, Any], Completion | None]:
-    """The per-object row for one method output: scores, or the reason it failed."""
+    """The per-object row for one method output: scores (in the protocol's frame, scaled by
+    ``frame_scale``), or the reason it failed."""
     row: dict[str, Any] = {"status": "ok", "error": ""}
     if isinstance(outcome, Exception):  # the method's failure must not lose the other objects
         row.update(status="failed", error=f"{type(outcome).__name__}: {outcome}")
@@ -167,9 +218,10 @@ def score(
         return row, None
     outcome.points = np.asarray(outcome.points, dtype=np.float32)
     row["n_points"] = len(outcome.points)
+    sdata, sctx, scomp = scaled(data, ctx, outcome, frame_scale)
     for metric in metrics:
         try:
-            value = float(metric.compute(outcome, data, ctx))
+            value = float(metric.compute(scomp, sdata, sctx))
         except Exception as exc:
             row.update(status="failed", error=f"metric {metric.name}: {type(exc).__name__}: {exc}")
             return row, None
@@ -182,7 +234,7 @@ def score(
     if outcome.samples:
         spread = posterior_spread(outcome.points, outcome.samples)
         outcome.cache["spread"] = spread
-        row["posterior_spread"] = float(spread.mean())
+        row["posterior_spread"] = float(spread.mean()) * frame_scale
     return row, outcome
 
 
@@ -238,11 +290,11 @@ class Runner:
         sizes = validate_contexts(plan.contexts)
         results: list[CellResult] = []
         cache = ObjectCache(plan.dataset)
-        store = ContextStore(plan.dataset.cache_root, plan.dataset.fingerprint())
+        store = ContextStore(plan.dataset.cache_root, plan.dataset.data_fingerprint())
         for split in plan.splits:
             refs = plan.dataset.objects(split)
+            self._announce(plan, split, refs)
             if not refs:
-                self.echo(f"  {plan.dataset.name}/{split}: no objects, skipped")
                 continue
             exp_id = self.tracker.experiment_id(experiment_name(plan.dataset.name, split))
             eval_points = (
@@ -255,6 +307,7 @@ class Runner:
                     key = stable_hash(cfg)
                     done = None if plan.force else self.tracker.find_cell(exp_id, key)
                     if done is not None:
+                        self._relabel(done.run_id, plan)
                         results.append(
                             CellResult(split, size, seed, done.run_id, True, done.metrics, exp_id)
                         )
@@ -270,6 +323,7 @@ class Runner:
             parent_key = stable_hash(
                 {
                     "method": plan.method.config(),
+                    "variant": plan.variant.key if plan.variant else None,
                     "dataset": plan.dataset.fingerprint(),
                     "split": split,
                 }
@@ -277,7 +331,7 @@ class Runner:
             self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
             parent = self.tracker.start_run(
                 exp_id,
-                f"{plan.method.name} on {plan.dataset.name}/{split}",
+                f"{self._label(plan)} on {plan.dataset.name}/{split}",
                 {
                     "shapebench.parent_key": parent_key,
                     "shapebench.kind": PARENT_KIND,
@@ -316,7 +370,7 @@ class Runner:
         tr = self.tracker
         tr.abandon_stale(exp_id, key)
         tags = self._tags(plan, split, size, seed, key, cfg)
-        run_id = tr.start_run(exp_id, f"{plan.method.name} k={size} seed={seed}", tags, parent)
+        run_id = tr.start_run(exp_id, f"{self._label(plan)} k={size} seed={seed}", tags, parent)
         try:
             rows, contexts, examples = [], [], []
             label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
@@ -329,7 +383,7 @@ class Runner:
                         rows.append(row)
                         try:
                             data = cache.get(ref)
-                            ctx = store.context(data, size, seed)
+                            ctx = store.context(data, size, seed, plan.protocol.context_normals)
                         except (ObjectLoadError, ValueError) as exc:
                             row.update(status="failed", error=str(exc), seconds=0.0)
                             bar.update()
@@ -341,7 +395,9 @@ class Runner:
                     n_points = len(ready[0][1].gt_points)
                     outputs, seconds = complete_chunk(method, [r[2] for r in ready], n_points)
                     for (row, data, ctx), output in zip(ready, outputs, strict=True):
-                        result, completion = score(output, data, ctx, plan.metrics)
+                        result, completion = score(
+                            output, data, ctx, plan.metrics, plan.protocol.scale
+                        )
                         row.update(result, seconds=seconds)
                         if completion is not None and len(examples) < EXAMPLE_PLYS:
                             examples.append((ctx.ref.id, completion))
@@ -356,7 +412,33 @@ class Runner:
             tr.end(run_id, "KILLED")
             raise
         tr.end(run_id)
-        return CellResult(split, size, seed, run_id, False, summary, exp_id)
+        uri = tr.client.get_run(run_id).info.artifact_uri.rstrip("/") + "/per_object.csv"
+        return CellResult(
+            split, size, seed, run_id, False, summary, exp_id, failure_reasons(table), uri
+        )
+
+    @staticmethod
+    def _label(plan: RunPlan) -> str:
+        return plan.variant.label if plan.variant else plan.method.name
+
+    def _relabel(self, run_id: str, plan: RunPlan) -> None:
+        """A finished cell reused under a new ``--label`` takes that label (results are equal)."""
+        if plan.variant is None:
+            return
+        run = self.tracker.client.get_run(run_id)
+        if run.data.tags.get("variant.label") != plan.variant.label:
+            self.tracker.client.set_tag(run_id, "variant.label", plan.variant.label)
+
+    def _announce(self, plan: RunPlan, split: str, refs: list[ObjectRef]) -> None:
+        """What is evaluated, and why objects were left out, before any work."""
+        ds = plan.dataset
+        if not refs:
+            self.echo(f"  {ds.name}/{split}: no objects, skipped")
+            return
+        cats = len({r.category for r in refs})
+        line = f"  {ds.name}/{split}: {len(refs)} objects in {cats} categories"
+        notes = ds.selection_notes(split)
+        self.echo(line + (f" ({'; '.join(notes)})" if notes else ""))
 
     def _tags(self, plan: RunPlan, split: str, size: int, seed: int, key: str, cfg: dict):
         ds = plan.dataset
@@ -372,6 +454,7 @@ class Runner:
             "dataset": ds.name,
             "dataset.version": ds.version,
             "dataset.fingerprint": ds.fingerprint(),
+            "dataset.data_root": str(ds.data_root) if ds.data_root else "",
             "split": split,
             "context_size": str(size),
             "seed": str(seed),
@@ -383,6 +466,13 @@ class Runner:
             tags[f"card.{name}"] = card
         if plan.checkpoint.get("run_id"):
             tags["training_run_id"] = plan.checkpoint["run_id"]
+        if plan.checkpoint.get("key"):
+            tags["checkpoint_key"] = str(plan.checkpoint["key"])
+        tags["protocol.context_normals"] = str(plan.protocol.context_normals)
+        tags["protocol.frame"] = plan.protocol.frame
+        tags["method.code"] = cfg["method"]["code"]
+        if plan.variant is not None:
+            tags.update(plan.variant.tags())
         return tags
 
     def _log_artifacts(self, run_id, table, contexts, examples) -> None:
@@ -392,12 +482,13 @@ class Runner:
             tmpdir = Path(tmp)
             table.to_csv(tmpdir / "per_object.csv", index=False)
             if contexts:
-                np.savez_compressed(
-                    tmpdir / "contexts.npz",
-                    objects=np.array([c.ref.id for c in contexts]),
-                    points=np.stack([c.points for c in contexts]),
-                    normals=np.stack([c.normals for c in contexts]),
-                )
+                arrays = {
+                    "objects": np.array([c.ref.id for c in contexts]),
+                    "points": np.stack([c.points for c in contexts]),
+                }
+                if all(c.normals is not None for c in contexts):  # given to the method
+                    arrays["normals"] = np.stack([c.normals for c in contexts])
+                np.savez_compressed(tmpdir / "contexts.npz", **arrays)
             self.tracker.client.log_artifacts(run_id, str(tmpdir))
             if examples:
                 ex_dir = tmpdir / "completions"

@@ -16,6 +16,7 @@ from shapebench.config import Settings, read_yaml
 from shapebench.errors import ConfigError, ShapebenchError
 from shapebench.method import TrainerOptions
 from shapebench.orchestrate import EvalOutcome, EvalRequest, evaluate
+from shapebench.protocol import DEFAULT_FRAME, Protocol
 from shapebench.registry import get_registry
 from shapebench.tracking import Tracker
 
@@ -25,6 +26,7 @@ class Entry:
     name: str
     options: dict[str, Any] = field(default_factory=dict)
     data_root: str | None = None
+    label: str | None = None
 
 
 @dataclass
@@ -37,6 +39,7 @@ class SweepSpec:
     seeds: list[int]
     profile: str | None = None
     metrics: list[str] | None = None
+    protocol: Protocol = field(default_factory=Protocol)
 
 
 def _entries(value: Any, key: str, path: Path) -> list[Entry]:
@@ -49,7 +52,8 @@ def _entries(value: Any, key: str, path: Path) -> list[Entry]:
         if isinstance(item, str):
             out.append(Entry(item))
         elif isinstance(item, dict) and "name" in item:
-            out.append(Entry(item["name"], dict(item.get("options") or {}), item.get("data_root")))
+            out.append(Entry(item["name"], dict(item.get("options") or {}),
+                             item.get("data_root"), item.get("label")))  # fmt: skip
         else:
             raise ConfigError(f"{path}: each of '{key}' is a name or {{name: ..., options: ...}}")
     return out
@@ -66,6 +70,8 @@ def load_sweep(path: Path) -> SweepSpec:
         "contexts",
         "seeds",
         "metrics",
+        "frame",
+        "context_normals",
     }
     if unknown:
         raise ConfigError(f"{path}: unknown keys {sorted(unknown)}")
@@ -88,6 +94,10 @@ def load_sweep(path: Path) -> SweepSpec:
         seeds=seeds,
         profile=data.get("profile"),
         metrics=data.get("metrics"),
+        protocol=Protocol(
+            context_normals=bool(data.get("context_normals", False)),
+            frame=data.get("frame", DEFAULT_FRAME),
+        ),
     )
 
 
@@ -125,6 +135,8 @@ def run_sweep(
                         metrics=spec.metrics,
                         force=force,
                         quiet=quiet,
+                        protocol=spec.protocol,
+                        label=m.label,
                     ),
                     settings,
                     trainer_for_seed,

@@ -29,12 +29,67 @@ from shapebench.tracking import TRAINING_KIND, Tracker, flatten
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 
 
-def checkpoint_key(method: ResolvedMethod, dataset: Dataset, seed: int) -> str:
+def trainer_options(settings: Settings, seed: int, **given: Any) -> TrainerOptions:
+    """The profile's ``trainer:`` settings, overridden by the given (command-line) ones."""
+    from dataclasses import fields
+
+    values = dict(settings.profile.get("trainer") or {})
+    values.update({k: v for k, v in given.items() if v is not None})
+    known = {f.name for f in fields(TrainerOptions)}
+    values = {k: v for k, v in values.items() if k in known}
+    values["seed"] = seed
+    return TrainerOptions(**values)
+
+
+def profile_trainer(settings: Settings, seed: int) -> TrainerOptions:
+    """The trainer settings a run gets with no command-line overrides."""
+    return trainer_options(settings, seed)
+
+
+def world_size(trainer: TrainerOptions) -> int:
+    """How many processes train together (devices x nodes): with the per-device batch, it sets
+    the effective batch size, so it changes the trained weights."""
+    devices = str(trainer.devices).strip()
+    if devices.isdigit():
+        count = int(devices)
+    elif "," in devices or devices.startswith("["):
+        count = len([d for d in devices.strip("[]").split(",") if d.strip()])
+    elif trainer.accelerator == "cpu":
+        count = 1  # Lightning's "auto" devices on a CPU: one process
+    else:
+        import torch
+
+        count = max(torch.cuda.device_count(), 1) if torch.cuda.is_available() else 1
+    return max(count, 1) * max(int(trainer.num_nodes or 1), 1)
+
+
+def training_identity(method: ResolvedMethod, trainer: TrainerOptions) -> dict[str, Any]:
+    """The trainer settings that change the trained weights; the accelerator does not count
+    (a checkpoint trained on a GPU serves a CPU evaluation)."""
+    return {
+        "epochs": trainer.max_epochs or getattr(method.options, "epochs", None),
+        "precision": trainer.precision,
+        "world_size": world_size(trainer),
+        "seed": trainer.seed,
+    }
+
+
+def apply_trainer(method: ResolvedMethod, trainer: TrainerOptions) -> ResolvedMethod:
+    """``--max-epochs`` becomes the method's ``epochs`` option when it has one, so the run's
+    params, its leaderboard label and its key all show the epochs really trained."""
+    if trainer.max_epochs and hasattr(method.options, "epochs"):
+        return method.with_options(epochs=trainer.max_epochs)
+    return method
+
+
+def checkpoint_key(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions) -> str:
+    """Everything that changes the trained weights: the method's training options and code, the
+    training data, and the trainer settings of :func:`training_identity` (the seed among them)."""
     return stable_hash(
         {
             "method": method.training_config(),
             "dataset": dataset.training_fingerprint(),
-            "seed": seed,
+            "trainer": training_identity(method, trainer),
         }
     )
 
@@ -64,7 +119,8 @@ def train_here(
     quiet: bool = False,
 ) -> dict[str, Any]:
     """Train in this process (the ``shapebench train`` command); return the checkpoint record."""
-    key = checkpoint_key(method, dataset, trainer.seed)
+    method = apply_trainer(method, trainer)
+    key = checkpoint_key(method, dataset, trainer)
     workdir = checkpoint_dir(settings, method, key)
     workdir.mkdir(parents=True, exist_ok=True)
     run_id = os.environ.get(RUN_ID_ENV)
@@ -83,7 +139,16 @@ def train_here(
             },
         )
         tracker.log_params(
-            run_id, flatten("", {"method": method.config(), "trainer": asdict(trainer)})
+            run_id,
+            flatten(
+                "",
+                {
+                    "method": method.config(),
+                    "trainer": asdict(trainer),
+                    "training": training_identity(method, trainer),
+                    "dataset": dataset.config(),
+                },
+            ),
         )
         os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
     instance = method.instantiate()
@@ -112,7 +177,8 @@ def ensure_checkpoint(
     quiet: bool = False,
 ) -> dict[str, Any]:
     """Reuse the checkpoint of an identical training, or train in a child process."""
-    key = checkpoint_key(method, dataset, trainer.seed)
+    method = apply_trainer(method, trainer)
+    key = checkpoint_key(method, dataset, trainer)
     workdir = checkpoint_dir(settings, method, key)
     record = read_done(workdir)
     if record is not None:

@@ -71,13 +71,16 @@ class ObjectData:
 class Context:
     """The sparse observation a method completes.
 
-    ``seed`` is derived from (dataset, object, context size, run seed): a method that draws random
-    numbers should seed from it so that runs repeat exactly.
+    ``normals`` is None under the default protocol: the paper gives methods the context points
+    only, and so does shapebench unless a run asks for ``--context-normals`` (see
+    :mod:`shapebench.protocol`). A method that can use normals must check for None. ``seed`` is
+    derived from (dataset, object, context size, run seed): a method that draws random numbers
+    should seed from it so that runs repeat exactly.
     """
 
     ref: ObjectRef
     points: np.ndarray
-    normals: np.ndarray
+    normals: np.ndarray | None
     seed: int
 
     @property

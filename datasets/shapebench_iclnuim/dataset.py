@@ -172,7 +172,7 @@ class ICLNUIMDataset(Dataset):
         if not np.isfinite(scale) or scale <= 0:
             raise ObjectLoadError(f"scene {ref.id} is degenerate (all points at one place)")
         unit = (cloud.points - center) / scale
-        rng = np.random.default_rng(stable_seed("preprocess", self.fingerprint(), ref.id))
+        rng = np.random.default_rng(stable_seed("preprocess", self.data_fingerprint(), ref.id))
         surface = _subset(len(unit), o.surface_candidates, rng)
         gt = _subset(len(unit), o.gt_points, rng)
         return {

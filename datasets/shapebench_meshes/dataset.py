@@ -37,7 +37,8 @@ class MeshFolderOptions(MeshOptions):
         default=0.0,
         metadata={
             "help": "fraction of each category's objects used for training (0: all are novel "
-            "test objects; > 0: categories become trained, the rest is the trained test split)"
+            "test objects; > 0: categories become trained, the rest is the trained test split)",
+            "selection": True,
         },
     )
 

@@ -38,22 +38,31 @@ class ShapeNetOptions(MeshOptions):
         default_factory=list,
         metadata={
             "help": "categories to use, by paper name, ShapeNet name or synset id, e.g. "
-            "-D 'categories=[Chair, Bus]' (default: every category present)"
+            "-D 'categories=[Chair, Bus]' (default: every category present)",
+            "selection": True,
         },
     )
     test_fraction: float = field(
-        default=0.2, metadata={"help": "fraction of each category's models kept for testing"}
+        default=0.2,
+        metadata={
+            "help": "fraction of each category's models kept for testing",
+            "selection": True,
+        },
     )
     split_dir: str | None = field(
         default=None,
         metadata={
             "help": "folder with test.txt|json (and train.txt|json) listing <synset>/<model> "
-            "ids, replacing the test_fraction split (DeepSDF split files work as they are)"
+            "ids, replacing the test_fraction split (DeepSDF split files work as they are)",
+            "selection": True,
         },
     )
     max_test_per_category: int = field(
         default=0,
-        metadata={"help": "evaluate at most this many test models per category (0: all)"},
+        metadata={
+            "help": "evaluate at most this many test models per category (0: all)",
+            "selection": True,
+        },
     )
 
 
@@ -99,10 +108,13 @@ class ShapeNetDataset(MeshDataset):
         if self._version is None:
             layouts = sorted({m.layout for models in self.models.values() for m in models})
             self._version = f"shapenet-{'+'.join(layouts)}-prep1"
-            if self.user_splits is not None:  # edited split files at one path are new test sets
-                listed = {k: sorted(v) for k, v in self.user_splits.items()}
-                self._version += f"-split{stable_hash(listed)}"
         return self._version
+
+    def identity(self, training: bool, selection: bool = True) -> dict:
+        out = super().identity(training, selection)
+        if selection and self.user_splits is not None:  # edited split files: new test sets
+            out["split_files"] = stable_hash({k: sorted(v) for k, v in self.user_splits.items()})
+        return out
 
     @property
     def user_splits(self) -> dict[str, set[str]] | None:
@@ -151,6 +163,30 @@ class ShapeNetDataset(MeshDataset):
                 stacklevel=2,
             )
         return table
+
+    def selection_notes(self, split: str) -> list[str]:
+        if split not in (TRAINED, NOVEL):
+            return []
+        if self._table is None:
+            self._table = self._split_table()
+        o = self.options
+        notes = []
+        counted = {}
+        for ref in self._table[split]:
+            counted[ref.category] = counted.get(ref.category, 0) + 1
+        empty = [
+            c.name
+            for c in self.selected
+            if c.split == split and c.synset in self.models and c.name not in counted
+        ]
+        if empty:
+            notes.append(f"{len(empty)} categor{'y' if len(empty) == 1 else 'ies'} with no test "
+                         f"model (too few models for test_fraction={o.test_fraction}): "
+                         + ", ".join(empty))  # fmt: skip
+        if o.max_test_per_category:
+            notes.append(f"at most {o.max_test_per_category} test models per category "
+                         "(-D max_test_per_category=0 evaluates all)")  # fmt: skip
+        return notes
 
     def mesh(self, ref: ObjectRef):
         synset, _, model = ref.id.partition("/")

@@ -22,11 +22,19 @@ from shapebench_synthetic import shapes
 @dataclass(frozen=True)
 class SyntheticOptions(MeshOptions):
     test_per_category: int = field(
-        default=2, metadata={"help": "test objects per category (raise it for a larger benchmark)"}
+        default=2,
+        metadata={
+            "help": "test objects per category (raise it for a larger benchmark)",
+            "selection": True,
+        },
     )
     train_per_category: int = field(
         default=8,
-        metadata={"help": "training objects per trained category", "training_only": True},
+        metadata={
+            "help": "training objects per trained category",
+            "training_only": True,
+            "selection": True,
+        },
     )
 
 
@@ -62,6 +70,13 @@ class SyntheticDataset(MeshDataset):
             if cat.split == cat_split
             for i in range(count)
         ]
+
+    def selection_notes(self, split: str) -> list[str]:
+        if split == TRAIN:
+            return []
+        n = self.options.test_per_category
+        return [f"{n} test object{'s' if n != 1 else ''} per category; "
+                "-D test_per_category=N for a larger benchmark"]  # fmt: skip
 
     def mesh(self, ref: ObjectRef):
         seed = stable_seed("synthetic", self.options.seed, ref.id) % (2**32)

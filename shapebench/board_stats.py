@@ -1,0 +1,154 @@
+"""The arithmetic of a leaderboard, as pure functions over a per-object table (no MLflow).
+
+Input: one row per (variant, context size, seed, object) with the columns ``variant`` (the row's
+key), ``label``, ``context``, ``seed``, ``object``, ``status`` (``ok`` or not) and ``value`` (the
+metric, raw). Output: the raw and normalised tables and, per context size, which variant is best
+and which are statistically tied with it.
+
+Rules (documented in docs/metrics.md, footnoted under every table):
+
+* **Failures count.** A failed object scores as the *worst* successful score of its cell (the same
+  variant and context size), so a method cannot improve its mean by failing on hard objects. The
+  success-only mean is kept beside it (``mean_ok``), with ``n_ok`` of ``n`` objects.
+* **Samples.** With several seeds, every (object, seed) pair is one sample.
+* **Normalised** (the paper's equation 8): each object's value divided by the reference variant's
+  value on the same object, context size and seed, both with the failure rule above; then mean and
+  sample standard deviation.
+* **Significance.** At each context size the best variant is the one with the best mean. Every
+  other variant is compared with it by a two-sided Wilcoxon signed-rank test over the samples
+  both have, and the p-values are Holm-corrected across the comparisons at that size. A variant
+  whose corrected p-value is at least ``alpha`` is *tied* with the best.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+ALPHA = 0.05
+TEST_NAME = "two-sided Wilcoxon signed-rank test over the same objects, Holm-corrected"
+KEYS = ["object", "seed"]
+
+
+def with_failure_rule(per_obj: pd.DataFrame, higher_is_better: bool = False) -> pd.DataFrame:
+    """``per_obj`` plus ``scored``: the value, or for a failed object the worst successful value
+    of its cell (NaN when every object of the cell failed)."""
+    out = per_obj.copy()
+    ok = out["status"] == "ok"
+    values = out["value"].where(ok)
+    worst = values.groupby([out["variant"], out["context"]]).transform(
+        "min" if higher_is_better else "max"
+    )
+    out["scored"] = values.fillna(worst)
+    return out
+
+
+def _mean_std(v: np.ndarray) -> tuple[float, float]:
+    if len(v) == 0:
+        return (np.nan, np.nan)
+    return (float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0)
+
+
+def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
+    """Per (variant, context): n, n_ok, failures, mean/std under the failure rule, and the
+    success-only mean_ok/std_ok."""
+    rows = []
+    for (variant, ctx), g in scored.groupby(["variant", "context"], sort=True):
+        ok = g[g["status"] == "ok"]["value"].to_numpy(dtype=float)
+        mean, std = _mean_std(g["scored"].dropna().to_numpy(dtype=float))
+        mean_ok, std_ok = _mean_std(ok)
+        rows.append(
+            {
+                "variant": variant,
+                "label": g["label"].iloc[0],
+                "context": int(ctx),
+                "mean": mean,
+                "std": std,
+                "mean_ok": mean_ok,
+                "std_ok": std_ok,
+                "n": len(g),
+                "n_ok": len(ok),
+                "failures": len(g) - len(ok),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def normalized_table(scored: pd.DataFrame, reference: str) -> pd.DataFrame | None:
+    """Equation 8 against the variant ``reference`` (a variant key); None if it has no runs."""
+    ref = scored[(scored["variant"] == reference) & scored["scored"].notna()]
+    if ref.empty:
+        return None
+    ref = ref[["context", *KEYS, "scored"]].rename(columns={"scored": "ref"})
+    merged = scored.merge(ref, on=["context", *KEYS], how="inner")
+    rows = []
+    for (variant, ctx), g in merged.groupby(["variant", "context"], sort=True):
+        usable = g[g["scored"].notna() & (g["ref"] > 0)]
+        mean, std = _mean_std((usable["scored"] / usable["ref"]).to_numpy(dtype=float))
+        rows.append(
+            {
+                "variant": variant,
+                "label": g["label"].iloc[0],
+                "context": int(ctx),
+                "mean": mean,
+                "std": std,
+                "n": len(usable),
+                "failures": int((g["status"] != "ok").sum()),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def paired_p(a: np.ndarray, b: np.ndarray) -> float:
+    """Two-sided Wilcoxon signed-rank p-value of paired samples (1.0 when they never differ)."""
+    from scipy.stats import wilcoxon
+
+    diff = a - b
+    if len(diff) == 0 or np.all(diff == 0):
+        return 1.0
+    return float(wilcoxon(a, b).pvalue)
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm's step-down correction; adjusted p-values in the input order."""
+    m = len(pvalues)
+    order = np.argsort(pvalues, kind="stable")
+    adjusted = np.empty(m)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * pvalues[i]))
+        adjusted[i] = running
+    return adjusted.tolist()
+
+
+def significance(
+    scored: pd.DataFrame, higher_is_better: bool = False, alpha: float = ALPHA
+) -> pd.DataFrame:
+    """Per (variant, context): ``best``, ``tied`` (with the best), ``p_vs_best`` (raw Wilcoxon),
+    ``p_holm`` (corrected) and ``n_pairs`` (samples compared)."""
+    rows = []
+    for ctx, g in scored.groupby("context", sort=True):
+        means = g.groupby("variant")["scored"].mean().dropna()
+        if means.empty:
+            continue
+        best = means.idxmax() if higher_is_better else means.idxmin()
+        best_values = g[g["variant"] == best].set_index(KEYS)["scored"]
+        others, pvals, pairs = [], [], []
+        for variant in sorted(means.index):
+            if variant == best:
+                continue
+            values = g[g["variant"] == variant].set_index(KEYS)["scored"]
+            both = pd.concat([best_values, values], axis=1, join="inner").dropna()
+            others.append(variant)
+            pvals.append(paired_p(both.iloc[:, 0].to_numpy(), both.iloc[:, 1].to_numpy()))
+            pairs.append(len(both))
+        rows.append({"variant": best, "context": int(ctx), "best": True, "tied": False,
+                     "p_vs_best": np.nan, "p_holm": np.nan,
+                     "n_pairs": len(best_values)})  # fmt: skip
+        for variant, p, adj, n in zip(others, pvals, holm(pvals), pairs, strict=True):
+            rows.append({"variant": variant, "context": int(ctx), "best": False,
+                         "tied": adj >= alpha, "p_vs_best": p, "p_holm": adj,
+                         "n_pairs": n})  # fmt: skip
+    return pd.DataFrame(
+        rows, columns=["variant", "context", "best", "tied", "p_vs_best", "p_holm", "n_pairs"]
+    )
