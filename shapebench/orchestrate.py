@@ -157,9 +157,10 @@ def _variant(
     if training is not None:
         training = {k: v for k, v in training.items() if k != "seed"}
         base = training_identity(method, profile_trainer(settings, trainer.seed))
-        training_overrides = {
-            k: v for k, v in training.items() if k != "epochs" and base.get(k) != v
-        }  # epochs already shows as the method's option
+        shown = {"epochs"} if hasattr(method.options, "epochs") else set()
+        training_overrides = {  # epochs shows as the method's own option when it has one
+            k: v for k, v in training.items() if k not in shown and base.get(k) != v
+        }
     return make_variant(
         method.name,
         method.config(),

@@ -9,8 +9,7 @@ from conftest import TINY, TINY_CONTEXTS
 
 from shapebench.config import make_settings
 from shapebench.errors import ShapebenchError
-from shapebench.leaderboard import Board, build_board, render_markdown
-from shapebench.paper import paper_table
+from shapebench.leaderboard import build_board
 from shapebench.tracking import Tracker
 
 
@@ -58,7 +57,7 @@ def test_leaderboard_without_reference_runs_says_so(shapebench):
     res = shapebench("leaderboard", "--dataset", "synthetic")  # default reference: msc-noopt
     assert res.returncode == 0, res.stderr
     md = (shapebench.workspace / "leaderboards" / "synthetic-novel.md").read_text()
-    assert "No runs of the reference method 'msc-noopt'" in md
+    assert "No runs of the reference 'msc-noopt'" in md
     assert "raw 50" in md
 
 
@@ -71,7 +70,7 @@ def _log_cell(client, exp_id: str, method: str, card: str) -> None:
     run = client.create_run(exp_id, tags={
         "shapebench.kind": "cell", "method": method, "method.display_name": method,
         "dataset": "synthetic", "dataset.fingerprint": "f", "context_size": "50", "seed": "0",
-        "card.chamfer-l2": card,
+        "card.chamfer-l2": card, "variant.key": method, "variant.label": method,
     })  # fmt: skip
     client.set_terminated(run.info.run_id)
 
@@ -81,22 +80,10 @@ def test_leaderboard_refuses_to_mix_metric_cards(tmp_path):
     tracker = Tracker(settings)
     exp = tracker.experiment_id("synthetic-novel")
     card = "metric=chamfer-l2;power=2;reduction=mean;direction=symmetric;halved=False;scale=1000.0"
-    _log_cell(tracker.client, exp, "a", card + ";frame=unit;eval_points=30000")
-    _log_cell(tracker.client, exp, "b", card + ";frame=unit;eval_points=16384")
+    _log_cell(tracker.client, exp, "a", card + ";frame=unit-radius;eval_points=30000")
+    _log_cell(tracker.client, exp, "b", card + ";frame=unit-radius;eval_points=16384")
     with pytest.raises(
         ShapebenchError,
         match="different cards.*used by a.*used by b|different cards.*used by b.*used by a",
     ):
         build_board(tracker, "synthetic", "novel", "a", "chamfer-l2")
-
-
-def test_paper_figures_stand_beside_ours_for_shapenet():
-    paper = paper_table("shapenet", "novel")
-    raw = pd.DataFrame([{"method": "gauss", "display": "Gauss densification", "context": 50,
-                         "mean": 1.0, "std": 0.5, "n": 3, "failures": 0}])  # fmt: skip
-    board = Board("shapenet", "novel", "chamfer-l2", "metric=chamfer-l2;scale=1000.0",
-                  "msc-noopt", [50], raw, None, "", paper, "1", "f", 0)  # fmt: skip
-    md = render_markdown(board, "shapebench leaderboard --dataset shapenet", "sqlite:///x")
-    assert "| Gauss densification (paper) | 2.97 ± 1.65 | 4.33 ± 4.98 |" in md  # Table 2
-    assert "| MSC (w/o opt) (paper) | 1.60 ± 5.13 | 1.00 ± 0.00 |" in md
-    assert "| Gauss densification (`gauss`) | 1.00 ± 0.50 |" in md

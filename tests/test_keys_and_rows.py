@@ -1,0 +1,390 @@
+"""One cell, one configuration: keys hold everything that changes a result, a leaderboard row
+is one variant, failures count, and orderings come with a paired test (issue: keys and rows)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import PLUGINS, TINY, pip_install_to
+from scipy.stats import wilcoxon
+
+from shapebench.config import make_settings
+from shapebench.protocol import Protocol
+from shapebench.variant import auto_label, make_variant
+
+RUN = ("-d", "synthetic", *TINY, "-q")
+
+
+def _csv(sb, name: str) -> pd.DataFrame:
+    return pd.read_csv(sb.workspace / "leaderboards" / name)
+
+
+def _download(sb, run_id: str, name: str = "per_object.csv") -> pd.DataFrame:
+    dst = sb.workspace / "dl" / run_id
+    dst.mkdir(parents=True, exist_ok=True)
+    path = sb.client().download_artifacts(run_id, name, str(dst))
+    return pd.read_csv(path, keep_default_na=False, na_values=[""])
+
+
+# ---------------------------------------------------------------------------------------- keys
+
+
+def test_max_epochs_is_part_of_the_checkpoint_key_and_the_row(with_example):
+    sb = with_example
+    short = sb("run", "-m", "example-template", *RUN, "--contexts", "50", "--split", "novel",
+               "--max-epochs", "3")  # fmt: skip
+    assert short.returncode == 0, short.stderr
+    plain = sb("run", "-m", "example-template", *RUN, "--contexts", "50", "--split", "novel")
+    assert plain.returncode == 0, plain.stderr
+    assert "cached" not in plain.stdout  # the 3-epoch cells are not this configuration
+    client = sb.client()
+    train_exp = client.get_experiment_by_name("synthetic-train")
+    trainings = client.search_runs([train_exp.experiment_id])
+    assert len(trainings) == 2
+    assert len({t.data.tags["checkpoint_key"] for t in trainings}) == 2
+    cells = sb.cell_runs("synthetic-novel")
+    assert len({c.data.tags["checkpoint_key"] for c in cells}) == 2
+    epochs = sorted(c.data.params.get("training.epochs") for c in cells)
+    assert epochs == ["3", "null"]  # the run's params show what was really used
+    res = sb("leaderboard", "-d", "synthetic", "--reference", "example-template")
+    assert res.returncode == 0, res.stderr
+    labels = set(_csv(sb, "synthetic-novel.csv")["label"])
+    assert labels == {"example-template", "example-template[epochs=3]"}
+
+
+def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
+    from shapebench.method import TrainerOptions
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.training import apply_trainer, checkpoint_key
+
+    settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
+    reg = get_registry()
+    method = resolve_method(reg, "pcn", settings)
+    data = resolve_dataset(reg, "synthetic", settings, None)
+
+    def key(**kw) -> str:
+        trainer = TrainerOptions(accelerator="cpu", **kw)
+        return checkpoint_key(apply_trainer(method, trainer), data, trainer)
+
+    base = key()
+    assert key(max_epochs=3) != base
+    assert key(precision="bf16-mixed") != base
+    assert key(devices=2, strategy="ddp") != base  # twice the effective batch
+    assert key(num_nodes=2) != base
+    assert key(seed=1) != base
+    assert key(strategy="ddp") == base  # one process either way: same weights
+    assert apply_trainer(method, TrainerOptions(max_epochs=3)).options.epochs == 3
+
+
+def test_code_digest_follows_the_source(tmp_path, monkeypatch):
+    from shapebench import code_digest as cd
+
+    pkg = tmp_path / "digest_probe"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "method.py").write_text("class M:\n    value = 1\n")
+    (pkg / "helpers.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    cls = importlib.import_module("digest_probe.method").M
+    first = cd.code_digest(cls)
+    assert first == cd.code_digest(cls)
+    (pkg / "helpers.py").write_text("X = 2\n")  # any file of the package counts
+    cd._digest_files.cache_clear()
+    assert cd.code_digest(cls) != first
+    sys.modules.pop("digest_probe.method", None)
+    sys.modules.pop("digest_probe", None)
+
+
+def test_an_edited_plugin_does_not_reuse_its_stale_cells(shapebench, tmp_path):
+    site = pip_install_to(tmp_path / "site", PLUGINS / "shapebench-example")
+    shapebench.sites = (site,)
+    args = ("run", "-m", "example-sphere", *RUN, "--contexts", "50", "--split", "novel")
+    assert shapebench(*args).returncode == 0
+    again = shapebench(*args)
+    assert "cached" in again.stdout
+    source = site / "shapebench_example" / "methods.py"
+    source.write_text(source.read_text() + "\n# edited by hand\n")
+    edited = shapebench(*args)
+    assert edited.returncode == 0, edited.stderr
+    assert "cached" not in edited.stdout and "new" in edited.stdout
+    codes = {c.data.tags["method.code"] for c in shapebench.cell_runs("synthetic-novel")}
+    assert len(codes) == 2
+
+
+# ------------------------------------------------------------------------------------ variants
+
+
+def test_variant_key_and_label():
+    p = Protocol()
+    cfg = {"name": "gauss", "options": {"sigma": 0.01}, "code": "c"}
+    a = make_variant("gauss", cfg, {}, p, "quick")
+    b = make_variant("gauss", {**cfg, "options": {"sigma": 0.05}}, {"sigma": 0.05}, p, "quick")
+    assert a.label == "gauss" and b.label == "gauss[sigma=0.05]" and a.key != b.key
+    assert make_variant("gauss", cfg, {}, p, "paper").label == "gauss[profile=paper]"
+    n = make_variant("gauss", cfg, {}, Protocol(context_normals=True), "quick")
+    assert n.label == "gauss+normals" and n.key != a.key
+    assert make_variant("gauss", cfg, {}, p, "quick", label="mine").label == "mine"
+    assert auto_label("igr", {"width": 64, "lr": 1e-3}) == "igr[lr=0.001,width=64]"
+
+
+def test_a_sigma_variant_gets_its_own_row(shapebench):
+    sb = shapebench
+    assert (
+        sb("run", "-m", "gauss", *RUN, "--contexts", "50,100", "--split", "novel").returncode == 0
+    )
+    res = sb("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel", "-O", "sigma=0.05")
+    assert res.returncode == 0, res.stderr
+    assert "gauss[sigma=0.05] on synthetic/novel" in res.stdout
+    assert sb("leaderboard", "-d", "synthetic", "--reference", "gauss").returncode == 0
+    md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
+    csv = _csv(sb, "synthetic-novel.csv")
+    raw = csv[csv.kind == "raw"]
+    wide = raw[raw.label == "gauss[sigma=0.05]"]
+    assert wide["context"].tolist() == [50]  # it lacks 100: "–" there, never another variant
+    row = next(line for line in md.splitlines() if "`gauss[sigma=0.05]`) |" in line)
+    assert row.split("|")[2].strip() != "–" and row.split("|")[3].strip() == "–"
+    assert "* `gauss[sigma=0.05]`: gauss, sigma=0.05" in md
+    # The plain row is computed from the sigma 0.01 runs only.
+    plain = raw[(raw.label == "gauss") & (raw.context == 50)]["mean"].item()
+    assert not np.isclose(plain, wide["mean"].item())
+
+
+def test_a_label_names_the_row(shapebench):
+    res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel",
+                     "--label", "gauss-baseline")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert (
+        shapebench("leaderboard", "-d", "synthetic", "--reference", "gauss-baseline").returncode
+        == 0
+    )
+    assert set(_csv(shapebench, "synthetic-novel.csv")["label"]) == {"gauss-baseline"}
+
+
+def test_context_normals_are_a_protocol_option_not_a_paper_row(shapebench):
+    sb = shapebench
+    args = ("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
+    assert sb(*args).returncode == 0
+    assert sb(*args, "--context-normals").returncode == 0
+    runs = sb.cell_runs("synthetic-novel")
+    by_flag = {r.data.tags["protocol.context_normals"]: r for r in runs}
+    assert set(by_flag) == {"True", "False"}
+    with np.load(sb.client().download_artifacts(by_flag["False"].info.run_id, "contexts.npz",
+                                                str(sb.workspace))) as z:  # fmt: skip
+        assert "normals" not in z.files  # the default protocol gives points only
+    assert sb("leaderboard", "-d", "synthetic", "--reference", "gauss").returncode == 0
+    md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
+    assert "| Gauss densification + test-time normals (`gauss+normals`) |" in md
+    assert "except rows marked +normals" in md
+
+
+def test_the_context_store_gives_normals_only_when_asked(tmp_path):
+    from shapebench.contexts import ContextStore
+    from shapebench.types import ObjectData, ObjectRef
+
+    pts = np.random.default_rng(0).normal(size=(200, 3)).astype(np.float32)
+    data = ObjectData(ObjectRef("a", "c"), pts, pts, pts)
+    store = ContextStore(tmp_path, "fp")
+    assert store.context(data, 50, 0).normals is None
+    with_normals = store.context(data, 50, 0, normals=True)
+    np.testing.assert_array_equal(with_normals.points, store.context(data, 50, 0).points)
+    assert with_normals.normals.shape == (50, 3)
+
+
+# ---------------------------------------------------------------------------------- data sets
+
+
+def test_split_options_keep_the_preprocessing_cache(tmp_path):
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset
+
+    settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
+    reg = get_registry()
+    a = resolve_dataset(reg, "synthetic", settings, None, {"test_per_category": 1})
+    b = resolve_dataset(reg, "synthetic", settings, None, {"test_per_category": 3})
+    assert a.cache_root == b.cache_root and a.data_fingerprint() == b.data_fingerprint()
+    assert a.fingerprint() != b.fingerprint()  # another evaluated set: other cell keys
+    c = resolve_dataset(reg, "synthetic", settings, None, {"gt_points": 1000})
+    assert c.cache_root != a.cache_root  # a processing option does change the arrays
+    from shapebench_meshes.dataset import MeshFolderOptions
+    from shapebench_shapenet.dataset import ShapeNetOptions
+
+    selection = {f.name for f in ShapeNetOptions.__dataclass_fields__.values()
+                 if f.metadata.get("selection")}  # fmt: skip
+    assert {"test_fraction", "max_test_per_category", "split_dir", "categories"} <= selection
+    assert MeshFolderOptions.__dataclass_fields__["train_fraction"].metadata["selection"]
+
+
+def test_an_explicitly_requested_empty_split_is_an_error(shapebench):
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "-D", "test_per_category=0",
+                     "--split", "novel", "--contexts", "50")  # fmt: skip
+    assert res.returncode == 2
+    assert "split novel of dataset 'synthetic' has no objects" in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_run_prints_what_is_evaluated(shapebench):
+    res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
+    assert "synthetic/novel: 4 objects in 4 categories" in res.stdout
+    assert "test_per_category" in res.stdout
+
+
+def test_the_leaderboard_picks_a_data_version(shapebench):
+    sb = shapebench
+    base = ("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
+    assert sb(*base, "-D", "gt_points=1000").returncode == 0
+    assert sb(*base).returncode == 0
+    assert sb("leaderboard", "-d", "synthetic", "--reference", "gauss").returncode == 0
+    md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
+    newest = _csv(sb, "synthetic-novel.csv")["fingerprint"].iloc[0]
+    assert f"dataset fingerprint `{newest}`" in md and "2000 eval points" in md
+    assert "runs on other data versions" in md and "--data-version" in md
+    fps = {r.data.tags["dataset.fingerprint"] for r in sb.cell_runs("synthetic-novel")}
+    older = (fps - {newest}).pop()
+    res = sb("leaderboard", "-d", "synthetic", "--reference", "gauss", "--data-version", older[:8])
+    assert res.returncode == 0, res.stderr
+    md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
+    assert f"dataset fingerprint `{older}`" in md and "1000 eval points" in md
+    bad = sb("leaderboard", "-d", "synthetic", "--data-version", "zzzz")
+    assert bad.returncode == 2 and "matches 0 of the data versions" in bad.stderr
+
+
+# ------------------------------------------------------------------------------------ failures
+
+
+def test_a_cell_where_every_object_fails_exits_non_zero_with_reasons(shapebench):
+    res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel",
+                     "-O", "sigma=.nan")  # fmt: skip
+    assert res.returncode == 1
+    assert "EVERY object failed" in res.stdout
+    assert "4 x completion has" in res.stdout and "NaN/inf points" in res.stdout
+    assert "per_object.csv" in res.stdout
+    assert "every object failed in 1 cell(s)" in res.stderr
+
+
+def _holm(p: list[float]) -> list[float]:
+    order = sorted(range(len(p)), key=lambda i: p[i])
+    out, running = [0.0] * len(p), 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(p) - rank) * p[i]))
+        out[i] = running
+    return out
+
+
+def test_failure_rule_and_tied_marks_recomputed_from_the_per_object_tables(with_example):
+    sb = with_example
+    for extra in ((), ("-O", "sigma=0.05"), ("-O", "sigma=0.011")):
+        assert sb("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "trained",
+                  *extra).returncode == 0  # fmt: skip
+    assert sb("run", "-m", "example-flaky", *RUN, "--contexts", "50",
+              "--split", "trained").returncode == 0  # fmt: skip
+    assert sb("leaderboard", "-d", "synthetic", "--split", "trained",
+              "--reference", "gauss").returncode == 0  # fmt: skip
+    csv = _csv(sb, "synthetic-trained.csv")
+    raw = csv[(csv.kind == "raw") & (csv.context == 50)].set_index("label")
+    tables = {}
+    for run in sb.cell_runs("synthetic-trained"):
+        table = _download(sb, run.info.run_id).set_index("object")
+        ok = table["status"] == "ok"
+        worst = table.loc[ok, "chamfer-l2"].max()
+        tables[run.data.tags["variant.label"]] = table["chamfer-l2"].where(ok, worst)
+    flaky = tables["example-flaky"]
+    assert raw.loc["example-flaky", "failures"] > 0
+    assert np.isclose(raw.loc["example-flaky", "mean"], 1000 * flaky.mean())
+    assert raw.loc["example-flaky", "n_ok"] < raw.loc["example-flaky", "n"] == 11
+    # The tied group, from scratch: best mean, Wilcoxon against it, Holm over the others.
+    means = {label: s.mean() for label, s in tables.items()}
+    best = min(means, key=means.get)
+    others = sorted(set(tables) - {best}, key=lambda lb: raw.loc[lb, "variant"])
+    p = [wilcoxon(tables[best], tables[o].loc[tables[best].index]).pvalue for o in others]
+    for label, adj in zip(others, _holm(p), strict=True):
+        assert np.isclose(raw.loc[label, "p_holm"], adj)
+        assert bool(raw.loc[label, "tied"]) == (adj >= 0.05)
+    assert bool(raw.loc[best, "best"])
+    md = (sb.workspace / "leaderboards" / "synthetic-trained.md").read_text()
+    assert "Wilcoxon signed-rank" in md and "Holm" in md
+    assert f"/{11} ok)" in md  # flaky's cell says how many objects succeeded
+
+
+def test_the_failure_rule_on_a_known_table():
+    from shapebench import board_stats
+
+    rows = [("a", "x", "ok", 1.0), ("a", "y", "ok", 3.0), ("a", "z", "failed", np.nan),
+            ("b", "x", "ok", 2.0), ("b", "y", "failed", np.nan), ("b", "z", "failed", np.nan),
+            ("c", "x", "failed", np.nan), ("c", "y", "failed", np.nan),
+            ("c", "z", "failed", np.nan)]  # fmt: skip
+    df = pd.DataFrame(rows, columns=["variant", "object", "status", "value"])
+    df = df.assign(label=df.variant, context=50, seed=0)
+    raw = board_stats.raw_table(board_stats.with_failure_rule(df)).set_index("variant")
+    assert raw.loc["a", "mean"] == pytest.approx((1 + 3 + 3) / 3)
+    assert raw.loc["a", "mean_ok"] == pytest.approx(2.0)
+    assert raw.loc["b", "mean"] == pytest.approx(2.0) and raw.loc["b", "n_ok"] == 1
+    assert np.isnan(raw.loc["c", "mean"]) and raw.loc["c", "n_ok"] == 0
+    assert board_stats.holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+
+
+# ----------------------------------------------------------------------------- paper's column
+
+
+def test_the_paper_column_stands_only_beside_the_unit_diameter_card():
+    from shapebench.leaderboard import Board, Row, render_markdown, tidy_csv
+    from shapebench.paper import paper_table
+
+    raw = pd.DataFrame([{"variant": "v", "label": "gauss", "context": 50, "mean": 1.0,
+                         "std": 0.5, "mean_ok": 1.0, "std_ok": 0.5, "n": 3, "n_ok": 3,
+                         "failures": 0}])  # fmt: skip
+    sig = pd.DataFrame([{"variant": "v", "context": 50, "best": True, "tied": False,
+                         "p_vs_best": np.nan, "p_holm": np.nan, "n_pairs": 3}])  # fmt: skip
+    rows = [Row("v", "gauss", "gauss", "Gauss densification", {})]
+    card = ("metric=chamfer-l2;power=2;reduction=mean;direction=symmetric;halved=False;"
+            "scale=1000.0;frame={};eval_points=30000")  # fmt: skip
+
+    def board(frame: str) -> Board:
+        return Board("shapenet", "novel", "chamfer-l2", card.format(frame), "msc-noopt", [50],
+                     rows, raw, None, sig, "", paper_table("shapenet", "novel"), "1", "f",
+                     frame=frame)  # fmt: skip
+
+    radius = render_markdown(board("unit-radius"), "cmd", "sqlite:///x")
+    diameter = render_markdown(board("unit-diameter"), "cmd", "sqlite:///x")
+    assert "(paper)" not in radius and "--frame unit-diameter" in radius
+    assert "| Gauss densification (paper) | 2.97 ± 1.65 | 4.33 ± 4.98 |" in diameter  # Table 2
+    assert "| Gauss densification (`gauss`) | **1.00 ± 0.50** |" in diameter
+    assert "paper" not in set(tidy_csv(board("unit-radius"))["source"])
+    assert "paper" in set(tidy_csv(board("unit-diameter"))["source"])
+
+
+def test_the_unit_diameter_frame_divides_squared_chamfer_by_four(shapebench):
+    sb = shapebench
+    args = ("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
+    assert sb(*args).returncode == 0
+    assert sb(*args, "--frame", "unit-diameter").returncode == 0
+    runs = {r.data.tags["protocol.frame"]: r for r in sb.cell_runs("synthetic-novel")}
+    radius = _download(sb, runs["unit-radius"].info.run_id).set_index("object")
+    diameter = _download(sb, runs["unit-diameter"].info.run_id).set_index("object")
+    np.testing.assert_allclose(diameter["chamfer-l2"], radius["chamfer-l2"] / 4, rtol=1e-5)
+    np.testing.assert_allclose(diameter["chamfer-l1"], radius["chamfer-l1"] / 2, rtol=1e-5)
+    assert "frame=unit-diameter" in runs["unit-diameter"].data.tags["card.chamfer-l2"]
+
+
+def test_sweep_files_take_the_protocol_and_labels(shapebench, tmp_path):
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(
+        textwrap.dedent("""
+        methods: [{name: gauss, options: {sigma: 0.02}, label: gauss-wide}]
+        datasets: [{name: synthetic, options: {test_per_category: 1, train_per_category: 1,
+                    surface_candidates: 3000, gt_points: 2000}}]
+        splits: [novel]
+        contexts: [50]
+        frame: unit-diameter
+    """)
+    )
+    res = shapebench("sweep", str(sweep), "-q")
+    assert res.returncode == 0, res.stderr
+    (run,) = shapebench.cell_runs("synthetic-novel")
+    assert run.data.tags["variant.label"] == "gauss-wide"
+    assert run.data.tags["protocol.frame"] == "unit-diameter"
