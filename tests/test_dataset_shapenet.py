@@ -161,10 +161,12 @@ def test_split_files_and_messy_meshes_fail_alone(tmp_path):
     assert [r.id for r in trained] == [f"{CHAIR}/chair-broken", f"{CHAIR}/chair0"]
     assert [r.id for r in ds.objects(TRAIN)] == [f"{CHAIR}/chair1", f"{CHAIR}/chair2"]
     assert [r.id for r in ds.objects(NOVEL)] == [f"{BUS}/bus-open", f"{BUS}/bus0"]
-    before = ds.version
+    before = ds.fingerprint()
     (splits / "test.txt").write_text("\n".join(test_ids[1:]))  # edited in place: new test set
-    assert shapenet(root, tmp_path / "cache", split_dir=str(splits)).version != before
-    assert ds.version == before
+    edited = shapenet(root, tmp_path / "cache", split_dir=str(splits))
+    assert edited.fingerprint() != before
+    assert edited.cache_root == ds.cache_root  # the objects' arrays stay valid
+    assert ds.fingerprint() == before
 
     broken = ObjectRef(f"{CHAIR}/chair-broken", "Chair")
     with pytest.raises(ObjectLoadError, match="chair-broken/model.obj"):
@@ -212,3 +214,24 @@ def test_dataset_pickles_with_its_listing(tmp_path):
     refs = ds.objects(NOVEL)
     clone = pickle.loads(pickle.dumps(ds))
     assert clone.objects(NOVEL) == refs and clone.fingerprint() == ds.fingerprint()
+
+
+def test_split_options_keep_the_cache_and_say_what_was_left_out(tmp_path):
+    root = shapenet_v1(tmp_path / "v1")
+    ds = shapenet(root, tmp_path / "cache")
+    ref = ds.objects(TRAINED)[0]
+    ds.load(ref)
+    cached = ds.cache_path(ref)
+    stamp = cached.stat().st_mtime_ns
+    other = shapenet(root, tmp_path / "cache", test_fraction=0.5, max_test_per_category=1)
+    assert other.fingerprint() != ds.fingerprint()  # another evaluated set
+    assert other.cache_root == ds.cache_root  # the same arrays: nothing re-preprocessed
+    other.load(ref)
+    assert cached.stat().st_mtime_ns == stamp
+    notes = " ".join(other.selection_notes(TRAINED))
+    assert "at most 1 test models per category" in notes
+    model(root, PLANE, "plane-only", V1, trimesh.creation.box(extents=(1.0, 0.3, 0.2)))
+    single = shapenet(root, tmp_path / "cache")  # one model: all of it goes to training
+    assert "Plane" not in {r.category for r in single.objects(TRAINED)}
+    assert "1 category with no test model" in " ".join(single.selection_notes(TRAINED))
+    assert "Plane" in " ".join(single.selection_notes(TRAINED))
