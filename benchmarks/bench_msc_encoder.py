@@ -46,9 +46,8 @@ def main() -> None:
     with torch.no_grad():
         for n in (50, 100, 300, 1000):
             pts = torch.randn(1, n, 3, device=device)
-            nrm = torch.nn.functional.normalize(torch.randn(1, n, 3, device=device), dim=-1)
-            enc = median_seconds(lambda p=pts, q=nrm: encoder(p, q), args.repeat)
-            mean, _ = encoder(pts, nrm)
+            enc = median_seconds(lambda p=pts: encoder(p), args.repeat)
+            mean, _ = encoder(pts)
             dec = median_seconds(lambda p=pts, z=mean: decoder(z, p), args.repeat)
             print(f"{n:>7} {enc * 1e3:>10.2f} {dec * 1e3:>24.2f}")
 

@@ -525,8 +525,9 @@ def prepare(dataset, splits, categories, methods, jobs, quiet, method_opts, data
     reports = [run_prepare(ds, splits.split(",") if splits else list(ds.eval_splits),
                            jobs=jobs, quiet=quiet, categories=cats)]  # fmt: skip
     need = frozenset()
-    for name in methods:
-        need |= resolve_method(reg, name, settings, _parse(method_opts, "-O")).cls.supervision
+    for name in methods:  # what this configuration needs (OccNet's depends on its recipe)
+        instance = resolve_method(reg, name, settings, _parse(method_opts, "-O")).instantiate()
+        need |= instance.needs() if hasattr(instance, "needs") else instance.supervision
     if methods:
         from shapebench.types import TRAIN
 

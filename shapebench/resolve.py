@@ -39,11 +39,16 @@ class ResolvedMethod:
 
         return code_digest(self.cls)
 
+    def effective_options(self) -> Any:
+        """The options as the method instance holds them: values a method fills in itself
+        (recipe-dependent ``None`` options) are resolved, so params and keys show what ran."""
+        return getattr(self.instantiate(), "options", self.options)
+
     def config(self) -> dict[str, Any]:
         plugin = self.registration.plugin
         return {
             "name": self.name,
-            "options": opts.as_dict(self.options),
+            "options": opts.as_dict(self.effective_options()),
             "distribution": plugin.distribution,
             "version": plugin.version,
             "code": self.code(),
@@ -67,9 +72,10 @@ class ResolvedMethod:
         """What determines a training's result: options that only affect completion are left out."""
         from dataclasses import fields
 
+        effective = self.effective_options()
         opts_dict = {
-            f.name: getattr(self.options, f.name)
-            for f in fields(self.options)
+            f.name: getattr(effective, f.name)
+            for f in fields(effective)
             if not f.metadata.get("completion_only")
         }
         plugin = self.registration.plugin

@@ -45,10 +45,10 @@ def test_decoders_take_the_latent_first_and_deepsdf_ends_in_tanh():
 def test_msc_posterior_variance_shrinks_as_points_are_added_and_ignores_order():
     torch.manual_seed(1)
     encoder = MSCEncoder(latent_dim=32, hidden=64, layers=2)
-    pts, nrm = _sphere(1000)
+    pts, _ = _sphere(1000)
     variances = []
     for n in (0, 10, 50, 100, 300, 1000):
-        _, var = encoder(pts[None, :n], nrm[None, :n])
+        _, var = encoder(pts[None, :n])
         variances.append(var)
     prior = 1.0 / encoder.prior_precision()
     assert torch.allclose(variances[0][0], prior)  # no points: the prior
@@ -56,15 +56,14 @@ def test_msc_posterior_variance_shrinks_as_points_are_added_and_ignores_order():
         assert (more <= fewer + 1e-7).all()  # never grows, in any dimension
     assert (variances[-1] < 0.5 * variances[1]).all()  # and really shrinks
     perm = torch.randperm(1000)
-    m1, v1 = encoder(pts[None], nrm[None])
-    m2, v2 = encoder(pts[None, perm], nrm[None, perm])
+    m1, v1 = encoder(pts[None])
+    m2, v2 = encoder(pts[None, perm])
     assert torch.allclose(m1, m2, atol=1e-5) and torch.allclose(v1, v2, atol=1e-7)
     # The mask drops padded points exactly.
     padded = torch.cat([pts[:100], torch.randn(20, 3)])[None]
-    pnrm = torch.cat([nrm[:100], torch.randn(20, 3)])[None]
     mask = torch.cat([torch.ones(100), torch.zeros(20)])[None]
-    m3, v3 = encoder(padded, pnrm, mask)
-    m4, v4 = encoder(pts[None, :100], nrm[None, :100])
+    m3, v3 = encoder(padded, mask=mask)
+    m4, v4 = encoder(pts[None, :100])
     assert torch.allclose(m3, m4, atol=1e-5) and torch.allclose(v3, v4)
 
 

@@ -1,14 +1,21 @@
-"""OccNet: occupancy labels on analytic shapes, both decoders, training lowers the loss."""
+"""OccNet: occupancy labels on analytic shapes, both decoders, training lowers the loss, and the
+paper's training queries (from the SDF samples) against the official uniform ones."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import trimesh
+from shapebench_occnet.method import OccNet
 from shapebench_occnet.module import OccNetModule
 
-from shapebench.preprocess.samples import occupancy_samples
+from shapebench.dataset import Dataset
+from shapebench.method import TrainerOptions, TrainingContext
+from shapebench.preprocess.samples import occupancy_from_sdf, occupancy_samples, sdf_samples
+from shapebench.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
 
 
 def _labels_match(mesh: trimesh.Trimesh, truth, margin: float) -> float:
@@ -58,3 +65,61 @@ def test_a_few_training_steps_lower_the_bce(decoder):
         opt.step()
         losses.append(float(loss))
     assert losses[-1] < 0.5 * losses[0]
+
+
+class _OneMesh(Dataset):
+    """One training object, a thin box in the unit-sphere frame; answers exactly what is asked."""
+
+    name = "one-mesh"
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        super().__init__(None, Path("."))
+        self.mesh = mesh
+
+    def categories(self) -> list[Category]:
+        return [Category("box", TRAINED)]
+
+    def objects(self, split: str) -> list[ObjectRef]:
+        return [ObjectRef("box/0", "box")] if split == TRAIN else []
+
+    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
+        rng = np.random.default_rng(0)
+        pts, faces = self.mesh.sample(2000, return_index=True)
+        extra = {}
+        if Supervision.SDF_SAMPLES in need:
+            extra["sdf"] = sdf_samples(self.mesh, 20_000, rng)
+        if Supervision.OCCUPANCY_SAMPLES in need:
+            extra["occupancy"] = occupancy_samples(self.mesh, 20_000, rng)
+        return ObjectData(ref, pts.astype(np.float32),
+                          self.mesh.face_normals[faces].astype(np.float32), pts, extra)  # fmt: skip
+
+
+def _inside_fraction(recipe: str, tmp_path: Path) -> float:
+    box = trimesh.creation.box((0.3, 0.5, 1.8))
+    box.apply_scale(1.0 / np.linalg.norm(box.vertices, axis=1).max())  # the unit-sphere frame
+    method = OccNet(OccNet.Options(recipe=recipe, query_points=2048, batch_shapes=1))
+    ctx = TrainingContext(_OneMesh(box), TrainerOptions(), tmp_path, "", quiet=True)
+    data = method.data_module(ctx)
+    data.load_objects()
+    batch = next(iter(data.train_dataloader()))
+    return float(batch["occupancy"][..., 3].mean())
+
+
+def test_paper_queries_come_from_sdf_samples_and_are_often_inside(tmp_path):
+    paper = OccNet(OccNet.Options())  # the default recipe is the paper's
+    assert paper.options.queries == "paper"
+    assert Supervision.SDF_SAMPLES in paper.needs()
+    assert Supervision.OCCUPANCY_SAMPLES not in paper.needs()
+    official = OccNet(OccNet.Options(recipe="official"))
+    assert official.options.queries == "uniform"
+    assert Supervision.OCCUPANCY_SAMPLES in official.needs()
+    assert paper.needs() | official.needs() <= OccNet.supervision  # prepare -m builds both
+    assert _inside_fraction("paper", tmp_path) > 0.2
+    assert _inside_fraction("official", tmp_path) < 0.05  # why the paper's queries matter
+
+
+def test_occupancy_from_sdf_labels_inside_where_sdf_is_negative():
+    sdf = np.array([[0, 0, 0, -0.1], [1, 1, 1, 0.2], [0.5, 0, 0, 0.0]], dtype=np.float32)
+    occ = occupancy_from_sdf(sdf)
+    assert occ.dtype == np.float32 and occ.shape == (3, 4)
+    assert occ[:, 3].tolist() == [1.0, 0.0, 0.0] and np.array_equal(occ[:, :3], sdf[:, :3])

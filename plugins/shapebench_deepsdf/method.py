@@ -11,24 +11,23 @@ Completion follows the paper's protocol, not ``reconstruct.py``: only the contex
 available, so the code (from N(0, 0.01^2)) is optimised to make the SDF zero on them, plus
 1e-4 * mean(z^2); no off-surface SDF values and no normals.
 
-Paper vs official (``recipe``): decoder lr 1e-3 (paper) or 5e-4 (official); test-time step
-"lr x error_0" with lr 1e-3 (paper) or Adam 5e-3 (official), 800 iterations.
+Paper vs official (``recipe``): decoder lr 1e-3 (paper) or 5e-4 (official). The test-time
+optimiser and the largest-component filter are shared with IGR and MSC
+(``shapebench.implicit.recipes``): "lr x error_0" with lr 1e-3 (paper) or Adam 5e-3 (official),
+800 steps.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from shapebench_igr.options import _c
+from shapebench_igr.options import _c, opt_recipe_option, opt_scale_option, opt_steps_option
 
 from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.recipes import apply_recipe
+from shapebench.implicit.recipes import apply_recipe, with_shared
 from shapebench.types import Context, Supervision
 
-RECIPES = {
-    "paper": {"lr": 1e-3, "opt_lr": 1e-3, "opt_scale_by_error": True},
-    "official": {"lr": 5e-4, "opt_lr": 5e-3, "opt_scale_by_error": False},
-}
+RECIPES = with_shared({"paper": {"lr": 1e-3}, "official": {"lr": 5e-4}}, decoder="deepsdf")
 
 
 @dataclass(frozen=True)
@@ -51,14 +50,19 @@ class DeepSDFOptions:
     lr_halve_every: int = field(default=500, metadata={"help": "epochs between lr halvings"})
     clamp: float = field(default=0.1, metadata={"help": "SDF clamping distance delta"})
     code_reg: float = field(default=1e-4, metadata={"help": "code regularisation weight"})
-    opt_steps: int = _c(800, "latent optimisation steps at completion (official: 800)")
+    # The test-time optimiser, shared with IGR and MSC (shapebench.implicit.recipes).
+    opt_recipe: str | None = opt_recipe_option()
+    opt_steps: int | None = opt_steps_option()
+    opt_scale_by_error: bool | None = opt_scale_option()
     opt_lr: float | None = _c(
         None, "latent optimisation step [paper 1e-3 x error_0, official 5e-3]"
     )
-    opt_scale_by_error: bool | None = _c(None, "multiply opt_lr by the initial loss (paper)")
     init_std: float = _c(0.01, "std of the initial latent code (0.01)")
     mesh_resolution: int = _c(256, "marching-cubes grid points per axis (paper: 256)")
     mesh_bf16: bool = _c(False, "evaluate the decoder in bfloat16 while meshing")
+    largest_component: bool | None = _c(
+        None, "keep only the mesh's largest connected component, by area [paper: no, official: yes]"
+    )
 
 
 class DeepSDF(ImplicitMethod):

@@ -41,3 +41,25 @@ class DecoderOptions:
     )
     mesh_resolution: int = _c(256, "marching-cubes grid points per axis (paper: 256)")
     mesh_bf16: bool = _c(False, "evaluate the decoder in bfloat16 while meshing (faster on CPU)")
+    largest_component: bool | None = _c(
+        None,
+        "keep only the mesh's largest connected component, by area [paper: no, official: "
+        "yes, as IGR's evaluation]",
+    )
+
+
+def opt_recipe_option():
+    """``opt_recipe`` of the auto-decoding methods (see ``shapebench.implicit.recipes``)."""
+    return _c(
+        None,
+        "test-time optimiser recipe, 'paper' (Adam, lr x error_0) or 'official' (Adam 5e-3); "
+        "default: the method's recipe",
+    )
+
+
+def opt_steps_option():
+    return _c(None, "latent optimisation steps at completion [800 in both recipes]")
+
+
+def opt_scale_option():
+    return _c(None, "multiply opt_lr by each object's initial loss [paper: yes, official: no]")

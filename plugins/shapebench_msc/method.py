@@ -11,27 +11,37 @@ normal term (§3.4) keep IGR's per-point scale.
 
 Completion: ``msc-noopt`` decodes the posterior mean of the context; ``msc`` then runs the
 post-encoder latent optimisation of equation 6 (gradient ascent of the context log-likelihood
-from that mean; Adam, ``opt_steps`` steps of ``opt_lr``; the paper gives neither). With
-``--samples``-style option ``posterior_samples = K`` the completion also carries K shapes decoded
-from codes drawn from the posterior.
+from that mean, nothing else unless ``opt_eikonal`` > 0) with the test-time optimiser IGR and
+DeepSDF use in the same recipe (``shapebench.implicit.recipes``; the paper gives no step size or
+count for MSC, and says the optimised variant "becomes a version of IGR", so the paper recipe
+uses IGR's "1e-4 x error_0"). With ``posterior_samples = K`` the completion also carries K shapes
+decoded from codes drawn from the posterior.
 
-Encoder inputs are the context points and their normals (the y_n of equation 2); the precision is
-kept non-negative per point (see ``shapebench.implicit.networks.MSCEncoder``).
+Encoder inputs are the context points and their observed signed distance, 0 on the surface (the
+(x_n, y_n) of equation 2 with y_n = s_n): no normals, which the protocol does not give at test
+time. The precision is kept non-negative per point (see
+``shapebench.implicit.networks.MSCEncoder``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from shapebench_igr.method import RECIPES as IGR_RECIPES
-from shapebench_igr.options import DecoderOptions, _c
+from shapebench_igr.method import TRAINING_RECIPES as IGR_TRAINING_RECIPES
+from shapebench_igr.options import (
+    DecoderOptions,
+    _c,
+    opt_recipe_option,
+    opt_scale_option,
+    opt_steps_option,
+)
 
 from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.recipes import apply_recipe
+from shapebench.implicit.recipes import apply_recipe, with_shared
 from shapebench.types import Completion, Context, Supervision
 
-RECIPES = {name: {k: v for k, v in values.items() if not k.startswith("opt_")}
-           for name, values in IGR_RECIPES.items()}  # fmt: skip
+#: IGR's training recipes (same decoder, same Eikonal term); IGR's test-time optimiser.
+RECIPES = with_shared(IGR_TRAINING_RECIPES, decoder="igr")
 
 
 @dataclass(frozen=True)
@@ -39,6 +49,13 @@ class MSCOptions(DecoderOptions):
     latent_dim: int = field(default=1024, metadata={"help": "latent size (paper: 1024 ShapeNet)"})
     encoder_width: int = field(default=512, metadata={"help": "width of the f and g MLPs"})
     encoder_layers: int = field(default=3, metadata={"help": "hidden layers of f and g"})
+    encoder_input: str = field(
+        default="sdf",
+        metadata={
+            "help": "y_n of equation 2: 'sdf' (the observed signed distance, 0 on the "
+            "surface; no normals) or 'normals' (needs context normals at test time)"
+        },
+    )
     mean_weights: str = field(
         default="printed",
         metadata={"help": "posterior mean weights: 'printed' (eq. 2, 1/g_n^2) or 'increment'"},
@@ -46,8 +63,18 @@ class MSCOptions(DecoderOptions):
     max_target: int = field(default=5000, metadata={"help": "largest target subset (paper: 5000)"})
     sigma_init: float = field(default=0.1, metadata={"help": "initial decoder noise sigma"})
     sigma_min: float = field(default=0.01, metadata={"help": "lower bound of the learned sigma"})
-    opt_steps: int = _c(200, "post-encoder optimisation steps (msc only; not in the paper)")
-    opt_lr: float = _c(5e-3, "post-encoder optimisation Adam step (msc only)")
+    # The post-encoder optimiser (msc only), shared with IGR and DeepSDF.
+    opt_recipe: str | None = opt_recipe_option()
+    opt_steps: int | None = opt_steps_option()
+    opt_scale_by_error: bool | None = opt_scale_option()
+    opt_lr: float | None = _c(
+        None, "post-encoder optimisation step (msc only) [paper 1e-4 x error_0, official 5e-3]"
+    )
+    opt_eikonal: float = _c(
+        0.0,
+        "Eikonal weight around the context in the post-encoder optimisation (msc only; "
+        "0: equation 6 as written)",
+    )
     posterior_samples: int = _c(0, "also decode this many posterior samples per object")
 
 
@@ -76,12 +103,16 @@ class MSCNoOpt(ImplicitMethod):
                            mean_weights=o.mean_weights, lr=o.lr, lr_halve_every=o.lr_halve_every,
                            eikonal_weight=o.eikonal_weight, normal_weight=o.normal_weight,
                            offsurface=o.offsurface, max_target=o.max_target,
-                           sigma_init=o.sigma_init, sigma_min=o.sigma_min)  # fmt: skip
+                           sigma_init=o.sigma_init, sigma_min=o.sigma_min,
+                           encoder_input=o.encoder_input)  # fmt: skip
 
     def posterior(self, contexts: list[Context]):
-        from shapebench.implicit.completion import stack_contexts
+        from shapebench.implicit.completion import require_normals, stack_contexts
 
         pts, nrm = stack_contexts(contexts, self.device)
+        if self.options.encoder_input != "normals":  # the default reads no normals
+            return pts, self.module.encoder(pts)
+        nrm = require_normals(nrm, "encoder_input=normals", self.name or "msc")
         return pts, self.module.encoder(pts, nrm)
 
     def infer_latents(self, contexts: list[Context]):
@@ -91,8 +122,9 @@ class MSCNoOpt(ImplicitMethod):
             return mean
         from shapebench.implicit.completion import optimise_latents
 
-        loss = self.module.context_nll(pts)
-        z, _ = optimise_latents(loss, mean, self.options.opt_steps, self.options.opt_lr)
+        o = self.options
+        loss = self.module.context_nll(pts, o.opt_eikonal)
+        z, _ = optimise_latents(loss, mean, o.opt_steps, o.opt_lr, o.opt_scale_by_error)
         return z
 
     def decode(self, i: int, z, ctx: Context, n_points: int) -> Completion:

@@ -17,7 +17,7 @@ from shapebench.implicit.losses import (
     offsurface_samples,  # fmt: skip
 )
 from shapebench.implicit.networks import IGRDecoder, MSCEncoder
-from shapebench.lightning_fit import adam_halving
+from shapebench.lightning_fit import adam_halving, step_generator
 
 
 class MSCModule(pl.LightningModule):
@@ -37,10 +37,12 @@ class MSCModule(pl.LightningModule):
         max_target: int,
         sigma_init: float = 0.1,
         sigma_min: float = 0.01,
+        encoder_input: str = "sdf",
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
-        self.encoder = MSCEncoder(latent_dim, encoder_width, encoder_layers, mean_weights)
+        self.encoder = MSCEncoder(latent_dim, encoder_width, encoder_layers, mean_weights,
+                                  inputs=encoder_input)  # fmt: skip
         self.decoder = IGRDecoder(latent_dim, width, depth)
         # The decoder's noise sigma_theta is learned, from sigma_init down to at most sigma_min: a
         # sigma far below the fit's residuals makes the likelihood outweigh the Eikonal term by
@@ -60,17 +62,15 @@ class MSCModule(pl.LightningModule):
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         h = self.hparams
-        pts, nrm = batch["points"], batch["normals"]
+        pts, nrm = batch["points"], batch["normals"]  # normals: the training-only normal term
         b, n, _ = pts.shape
-        mq, vq = self.encoder(pts, nrm)  # q = p(h | D_k)
-        # A random context subset D_k^ctxt (log-uniform size) gives the prior of equation 3.
-        m = int(math.exp(torch.empty(1).uniform_(0.0, math.log(n)).item()))
-        perm = torch.randperm(n, device=pts.device)
-        ctx = perm[:m]
-        mp, vp = self.encoder(pts[:, ctx], nrm[:, ctx])
+        y = nrm if h.encoder_input == "normals" else None  # default: (x_n, s_n = 0), no normals
+        mq, vq = self.encoder(pts, y)  # q = p(h | D_k)
+        ctx, target = self.draw_subsets(n)
+        # The "prior" of equation 3, from D_k^ctxt.
+        mp, vp = self.encoder(pts[:, ctx], None if y is None else y[:, ctx])
         latent = mq + vq.sqrt() * torch.randn_like(mq)
-        t = int(torch.randint(1, min(h.max_target, n) + 1, (1,)).item())
-        target = perm[torch.randperm(n, device=pts.device)[:t]]
+        t = len(target)
         tp, tn = pts[:, target], nrm[:, target]
         off = offsurface_samples(pts, h.offsurface)
         x = torch.cat([tp, off], dim=1).detach().requires_grad_(True)
@@ -88,13 +88,47 @@ class MSCModule(pl.LightningModule):
                       on_step=False, on_epoch=True, batch_size=b, sync_dist=True)  # fmt: skip
         return loss
 
+    def draw_subsets(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Indices of the context subset D_k^ctxt (size log-uniform in [1, n]) and of the target
+        subset (size uniform in [1, max_target]), drawn from the training's seeded generator."""
+        gen = step_generator(self)
+        m = int(math.exp(torch.empty(1).uniform_(0.0, math.log(n), generator=gen).item()))
+        perm = torch.randperm(n, generator=gen)
+        t = int(torch.randint(1, min(self.hparams.max_target, n) + 1, (1,), generator=gen).item())
+        target = perm[torch.randperm(n, generator=gen)[:t]]
+        device = self.log_sigma.device
+        return perm[:m].to(device), target.to(device)
+
     def configure_optimizers(self):
         return adam_halving(self.parameters(), self.hparams.lr, self.hparams.lr_halve_every)
 
-    def context_nll(self, points: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
-        """Equation 6's objective: the negative log-likelihood of the context points."""
+    def context_nll(
+        self, points: torch.Tensor, eikonal_weight: float = 0.0
+    ) -> Callable[[torch.Tensor], torch.Tensor]:
+        """Equation 6's objective per object: the negative log-likelihood of the context points,
+        as the mean over points of 0.5 (f / sigma)^2.
+
+        Equation 6 ascends the summed log-likelihood; the mean and the dropped constant
+        (log sigma + log(2 pi) / 2 per point) leave the direction unchanged, and Adam is invariant
+        to the loss scale. What they change is the value: a non-negative error per point, so that
+        "lr x error_0" means the same for every context size (with the constant, the sum is
+        negative once the residuals are below sigma, and so would be the step).
+        ``eikonal_weight`` > 0 adds lambda * Eikonal around the context points (an optional
+        regulariser that the paper does not use; off by default).
+        """
+        h = self.hparams
 
         def loss(z: torch.Tensor) -> torch.Tensor:
-            return self.nll(self.decoder(z, points)).sum(dim=1)
+            if eikonal_weight <= 0:
+                f = self.decoder(z, points)
+                return 0.5 * (f / self.sigma()).pow(2).mean(dim=1)
+            off = offsurface_samples(points, h.offsurface)
+            x = torch.cat([points, off], dim=1).detach().requires_grad_(True)
+            with torch.enable_grad():
+                f = self.decoder(z, x)
+                g = gradient(f, x)
+            n = points.shape[1]
+            data = 0.5 * (f[:, :n] / self.sigma()).pow(2).mean(dim=1)
+            return data + eikonal_weight * eikonal(g[:, n:])
 
         return loss

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import random
-
 import pytorch_lightning as pl
 import torch
 
+from shapebench.lightning_fit import step_generator
 from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
 from shapebench_pcn.network import PCNNetwork
 
@@ -29,8 +28,9 @@ class PCNModule(pl.LightningModule):
         }
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        # Every batch sees one of the benchmark's context sizes, drawn at random.
-        k = random.choice(self.hparams.context_sizes)
+        # Every batch sees one of the benchmark's context sizes, drawn from the seeded generator.
+        sizes = self.hparams.context_sizes
+        k = sizes[int(torch.randint(len(sizes), (1,), generator=step_generator(self)))]
         terms = self.losses(batch["points"][:, :k], batch["complete"])
         a = alpha(self.global_step, tuple(self.hparams.alpha_steps))
         loss = terms["coarse"] + a * terms["fine"]

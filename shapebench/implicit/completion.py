@@ -7,17 +7,39 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+import trimesh
 from torch import nn
 
 from shapebench.geometry.meshing import extract_mesh, sample_mesh_points
 from shapebench.types import Completion, Context
 
 
-def stack_contexts(contexts: list[Context], device: torch.device) -> tuple[torch.Tensor, ...]:
-    """(B, k, 3) points and normals; contexts of one cell all have the same size k."""
+def stack_contexts(
+    contexts: list[Context], device: torch.device
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(B, k, 3) points, and normals or None; contexts of one cell all have the same size k.
+
+    The benchmark's protocol gives methods points only, so normals are None unless every context
+    carries them (``--context-normals``, see :mod:`shapebench.protocol`).
+    """
     pts = torch.from_numpy(np.stack([c.points for c in contexts])).to(device)
-    nrm = torch.from_numpy(np.stack([c.normals for c in contexts])).to(device)
-    return pts, nrm
+    normals = [getattr(c, "normals", None) for c in contexts]
+    if any(n is None for n in normals):
+        return pts, None
+    return pts, torch.from_numpy(np.stack(normals)).to(device)
+
+
+def require_normals(normals: torch.Tensor | None, setting: str, owner: str) -> torch.Tensor:
+    """``normals``, or a clear error naming the option ``setting`` ("key=value") that asked for
+    them."""
+    if normals is None:
+        option = setting.partition("=")[0]
+        raise ValueError(
+            f"{owner}: option {setting} needs context normals, but the contexts have none (the "
+            f"benchmark protocol gives points only): change {option}, or run with "
+            "--context-normals"
+        )
+    return normals
 
 
 def optimise_latents(
@@ -78,18 +100,48 @@ def field_of(decoder: nn.Module, z: torch.Tensor, device: torch.device,
     return field
 
 
+def component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
+    """One label per face; faces sharing an edge have the same label."""
+    return trimesh.graph.connected_component_labels(mesh.face_adjacency,
+                                                    node_count=len(mesh.faces))  # fmt: skip
+
+
+def largest_component(mesh: trimesh.Trimesh, labels: np.ndarray | None = None) -> trimesh.Trimesh:
+    """The connected component of ``mesh`` with the largest surface area (as IGR's evaluation,
+    ``connected=True`` in ``utils/plots.py``)."""
+    if len(mesh.faces) == 0:
+        return mesh
+    labels = component_labels(mesh) if labels is None else labels
+    if labels.max() == 0:
+        return mesh
+    keep = labels == int(np.argmax(np.bincount(labels, weights=mesh.area_faces)))
+    out = trimesh.Trimesh(mesh.vertices, mesh.faces[keep], process=False)
+    out.remove_unreferenced_vertices()
+    return out
+
+
 def mesh_completion(field: Callable[[np.ndarray], np.ndarray], ctx: Context, n_points: int,
-                    resolution: int, level: float = 0.0,
-                    inside_is_negative: bool = True) -> Completion:  # fmt: skip
+                    resolution: int, level: float = 0.0, inside_is_negative: bool = True,
+                    keep_largest: bool = False) -> Completion:  # fmt: skip
     """Marching cubes on ``field`` (an SDF, or logits with ``inside_is_negative=False``), then
-    ``n_points`` sampled area-weighted on the mesh."""
+    ``n_points`` sampled area-weighted on the mesh.
+
+    ``keep_largest`` drops every connected component but the one with the largest area before
+    sampling (the ``largest_component`` option of every implicit method): a small detached
+    component far from the object costs a lot under squared Chamfer.
+    """
     start = time.perf_counter()
     mesh, stats = extract_mesh(field, resolution=resolution, level=level,
                                inside_is_negative=inside_is_negative,
                                coarse=min(32, resolution))  # fmt: skip
+    labels = component_labels(mesh) if len(mesh.faces) else np.zeros(0, dtype=int)
+    components = int(labels.max()) + 1 if len(labels) else 0
+    if keep_largest:
+        mesh = largest_component(mesh, labels)
     points = sample_mesh_points(mesh, n_points, seed=ctx.seed)
     return Completion(points=points, mesh=mesh, info={
         "mesh_seconds": time.perf_counter() - start,
         "mesh_evaluations": float(stats.evaluations),
         "mesh_faces": float(len(mesh.faces)),
+        "mesh_components": float(components),
     })  # fmt: skip

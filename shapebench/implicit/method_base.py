@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 import torch
 
 from shapebench.method import Method, TrainingContext
-from shapebench.types import Completion, Context
+from shapebench.types import Completion, Context, Supervision
 
 
 class LightningMethod(Method):
@@ -20,33 +20,46 @@ class LightningMethod(Method):
     trains = True
     batch_size = 8
     Module: ClassVar[type]
+    #: The shared training loop changes trained weights: its source is part of the keys.
+    code_modules: ClassVar[tuple[str, ...]] = ("shapebench.lightning_fit",)
 
     def __init__(self, options: Any | None = None) -> None:
         super().__init__(options)
         self.module = None
 
+    def needs(self) -> frozenset[Supervision]:
+        """What this configured instance needs from the training split.
+
+        The class attribute ``supervision`` is the union over every option value (what
+        ``shapebench prepare -m`` builds); an instance may need less, as OccNet, whose query
+        source depends on its recipe.
+        """
+        return frozenset(self.supervision)
+
     def data_module(self, ctx: TrainingContext):
         """The training split as batches of ``batch_shapes`` objects, each with
         ``surface_points`` surface points and ``sdf_points`` SDF samples (options the method may
-        have)."""
+        have), every draw seeded from the trainer seed."""
         from shapebench.lightning_fit import ShapeDataModule
 
         o = self.options
-        return ShapeDataModule(ctx.dataset, self.supervision, getattr(o, "surface_points", 1),
+        return ShapeDataModule(ctx.dataset, self.needs(), getattr(o, "surface_points", 1),
                                o.batch_shapes, sdf_points=getattr(o, "sdf_points", 0),
                                quiet=ctx.quiet,
                                target_points=getattr(o, "target_points", 0),
-                               query_points=getattr(o, "query_points", 0))  # fmt: skip
+                               query_points=getattr(o, "query_points", 0),
+                               seed=ctx.trainer.seed)  # fmt: skip
 
     @abstractmethod
     def build_module(self, n_shapes: int):
         """A fresh LightningModule for ``n_shapes`` training objects."""
 
     def fit(self, ctx: TrainingContext) -> Path:
-        from shapebench.lightning_fit import fit_lightning
+        from shapebench.lightning_fit import fit_lightning, seed_training
 
         data = self.data_module(ctx)
         n_shapes = data.load_objects()
+        seed_training(ctx.trainer.seed)  # the initial weights are drawn here, not in fit_lightning
         return fit_lightning(self.build_module(n_shapes), data, ctx, self.options.epochs)
 
     def load_checkpoint(self, path: Path) -> None:
@@ -94,5 +107,7 @@ class ImplicitMethod(LightningMethod):
     def mesh(self, z: torch.Tensor, ctx: Context, n_points: int) -> Completion:
         from shapebench.implicit.completion import field_of, mesh_completion
 
-        field = field_of(self.module.decoder, z, self.device, bf16=self.options.mesh_bf16)
-        return mesh_completion(field, ctx, n_points, self.options.mesh_resolution)
+        o = self.options
+        field = field_of(self.module.decoder, z, self.device, bf16=o.mesh_bf16)
+        return mesh_completion(field, ctx, n_points, o.mesh_resolution,
+                               keep_largest=bool(o.largest_component))  # fmt: skip

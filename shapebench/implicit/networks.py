@@ -146,8 +146,11 @@ def mlp(sizes: list[int]) -> nn.Sequential:
 class MSCEncoder(nn.Module):
     """The posterior p(h | D) of equation 2, a diagonal Gaussian over the latent code.
 
-    Each point (x_n, y_n) -- position and normal -- goes through two per-point MLPs: f gives its
-    vote f_n for the code, g its precision. Equation 2 writes the precision as
+    Each observation (x_n, y_n) -- a position and the signed distance observed there, 0 for the
+    surface points the benchmark gives (s_n = 0 in equation 3) -- goes through two per-point MLPs:
+    f gives its vote f_n for the code, g its precision. Normals are not an input by default: the
+    protocol gives methods points only at test time (``inputs="normals"`` takes y_n = the normal
+    instead, for protocols that supply normals). Equation 2 writes the precision as
     sum_n (1/g_n^2 - 1/g_0^2) + 1/g_0^2, which goes negative whenever a point's 1/g_n^2 is below
     the prior's. Here the per-point increment r_n = 1/g_n^2 - 1/g_0^2 is produced directly through
     a softplus, so it is never negative, and the prior precision 1/g_0^2 is a learned positive
@@ -157,10 +160,16 @@ class MSCEncoder(nn.Module):
     r_n, the exact linear-Gaussian posterior. Sums make it order-invariant and accept any N.
     """
 
+    #: Per-point inputs: x, y, z and y_n, the observed signed distance (1) or the normal (3).
+    INPUTS = {"sdf": 4, "normals": 6}
+
     def __init__(self, latent_dim: int, hidden: int = 512, layers: int = 3,
-                 mean_weights: str = "printed") -> None:  # fmt: skip
+                 mean_weights: str = "printed", inputs: str = "sdf") -> None:  # fmt: skip
         super().__init__()
-        sizes = [6] + [hidden] * layers
+        if inputs not in self.INPUTS:
+            raise ValueError(f"inputs must be one of {list(self.INPUTS)}, got {inputs!r}")
+        self.inputs = inputs
+        sizes = [self.INPUTS[inputs]] + [hidden] * layers
         self.f = mlp([*sizes, latent_dim])
         self.g = mlp([*sizes, latent_dim])
         self.prior_precision_raw = nn.Parameter(torch.zeros(latent_dim))
@@ -175,13 +184,19 @@ class MSCEncoder(nn.Module):
     def prior_precision(self) -> torch.Tensor:
         return F.softplus(self.prior_precision_raw) + 1e-4
 
-    def forward(self, points: torch.Tensor, normals: torch.Tensor,
+    def forward(self, points: torch.Tensor, y: torch.Tensor | None = None,
                 mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-        """``points``/``normals`` (B, N, 3), optional ``mask`` (B, N) of real points.
+        """``points`` (B, N, 3); ``y`` their observed signed distances (B, N), zeros when omitted
+        (surface points), or their normals (B, N, 3) with ``inputs="normals"``; optional ``mask``
+        (B, N) of real points.
 
         Returns the posterior mean and variance, each (B, d).
         """
-        inp = torch.cat([points, normals], dim=-1)
+        if self.inputs == "sdf":
+            y = (points.new_zeros(points.shape[:-1]) if y is None else y)[..., None]
+        elif y is None:
+            raise ValueError("an MSC encoder with inputs='normals' needs the points' normals")
+        inp = torch.cat([points, y], dim=-1)
         f = self.f(inp)
         r = F.softplus(self.g(inp))
         if mask is not None:

@@ -1,4 +1,5 @@
-"""Training samples produced from a normalised mesh: SDF samples and complete point clouds.
+"""Training samples produced from a normalised mesh: SDF samples, occupancy samples and complete
+point clouds.
 
 SDF samples follow DeepSDF's ``PreprocessMesh`` procedure: 47/50 of the points are surface
 samples perturbed with Gaussian noise of variance 0.005 and 0.0005 (one each), 3/50 are uniform in
@@ -88,3 +89,14 @@ def occupancy_samples(
     points = rng.uniform(-bound, bound, size=(n, 3))
     occ = inside(mesh, points).astype(np.float32)
     return np.concatenate([points, occ[:, None]], axis=1).astype(np.float32)
+
+
+def occupancy_from_sdf(sdf: np.ndarray) -> np.ndarray:
+    """``(m, 4)`` rows of x, y, z, occupancy from SDF samples: inside (1) where sdf < 0.
+
+    The paper's OccNet queries (§4.1: points "randomly sampled from those used in DeepSDF",
+    annotated inside or outside). DeepSDF's samples lie mostly near the surface, so about half of
+    them are inside, where uniform samples in the padded box would be mostly outside.
+    """
+    inside = (sdf[:, 3] < 0).astype(np.float32)
+    return np.concatenate([sdf[:, :3], inside[:, None]], axis=1).astype(np.float32)
