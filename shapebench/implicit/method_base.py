@@ -91,6 +91,13 @@ class ImplicitMethod(LightningMethod):
     ) -> list[Completion | Exception]:
         if self.module is None:
             raise RuntimeError(f"{self.name}: load_checkpoint() was not called")
+        # Test-time draws (Eikonal samples around the context, posterior samples) come from
+        # torch's global generator: seed it from this batch's contexts, so that an object's
+        # completion does not depend on which cells ran earlier in the process (a resumed or
+        # partial run then gives exactly what a full run gives).
+        from shapebench.hashing import stable_seed
+
+        torch.manual_seed(stable_seed("complete", *(c.seed for c in contexts)) % (2**63))
         latents = self.infer_latents(contexts)
         out: list[Completion | Exception] = []
         for i, (z, ctx) in enumerate(zip(latents, contexts, strict=True)):
