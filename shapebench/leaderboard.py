@@ -178,6 +178,11 @@ def _select_runs(
     return runs, str(fingerprint), left_out
 
 
+def _text(value: object) -> str:
+    """A tag value, or "" where the run has none (pandas gives NaN for a missing tag)."""
+    return "" if value is None or (isinstance(value, float) and np.isnan(value)) else str(value)
+
+
 def _rows(runs: pd.DataFrame) -> list[Row]:
     rows = []
     for key, g in runs.groupby("variant.key"):
@@ -187,8 +192,8 @@ def _rows(runs: pd.DataFrame) -> list[Row]:
         if overrides.get("+normals"):  # never under the paper's row name
             display = f"{display} + test-time normals"
         rows.append(Row(str(key), first["_label"], first["method"], display, overrides,
-                        str(first.get("method.code") or ""),
-                        str(first.get("checkpoint_key") or "")))  # fmt: skip
+                        _text(first.get("method.code")),
+                        _text(first.get("checkpoint_key"))))  # fmt: skip
 
     def rank(row: Row) -> tuple[int, str]:
         base = row.display
