@@ -55,23 +55,20 @@ def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (variant, ctx), g in scored.groupby(["variant", "context"], sort=True):
         ok = g[g["status"] == "ok"]["value"].to_numpy(dtype=float)
-        mean, std = _mean_std(g["scored"].dropna().to_numpy(dtype=float))
         mean_ok, std_ok = _mean_std(ok)
-        rows.append(
-            {
-                "variant": variant,
-                "label": g["label"].iloc[0],
-                "context": int(ctx),
-                "mean": mean,
-                "std": std,
-                "mean_ok": mean_ok,
-                "std_ok": std_ok,
-                "n": len(g),
-                "n_ok": len(ok),
-                "failures": len(g) - len(ok),
-            }
+        row = _summary(variant, ctx, g, g["scored"].dropna().to_numpy(dtype=float))
+        row.update(
+            mean_ok=mean_ok, std_ok=std_ok, n=len(g), n_ok=len(ok), failures=len(g) - len(ok)
         )
+        rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _summary(variant: str, ctx: int, group: pd.DataFrame, values: np.ndarray) -> dict:
+    """The columns every table shares: the row, the context size, mean and std of ``values``."""
+    mean, std = _mean_std(values)
+    label = group["label"].iloc[0]
+    return {"variant": variant, "label": label, "context": int(ctx), "mean": mean, "std": std}
 
 
 def normalized_table(scored: pd.DataFrame, reference: str) -> pd.DataFrame | None:
@@ -84,18 +81,9 @@ def normalized_table(scored: pd.DataFrame, reference: str) -> pd.DataFrame | Non
     rows = []
     for (variant, ctx), g in merged.groupby(["variant", "context"], sort=True):
         usable = g[g["scored"].notna() & (g["ref"] > 0)]
-        mean, std = _mean_std((usable["scored"] / usable["ref"]).to_numpy(dtype=float))
-        rows.append(
-            {
-                "variant": variant,
-                "label": g["label"].iloc[0],
-                "context": int(ctx),
-                "mean": mean,
-                "std": std,
-                "n": len(usable),
-                "failures": int((g["status"] != "ok").sum()),
-            }
-        )
+        row = _summary(variant, ctx, g, (usable["scored"] / usable["ref"]).to_numpy(dtype=float))
+        row.update(n=len(usable), failures=int((g["status"] != "ok").sum()))
+        rows.append(row)
     return pd.DataFrame(rows)
 
 
