@@ -25,8 +25,9 @@ from pathlib import Path
 _EXCLUDED = {"shapebench.method", "abc", "builtins"}
 
 
-def _module_sources(module_name: str) -> list[Path]:
-    """The files whose contents stand for ``module_name`` (see the module docstring)."""
+def _module_sources(module_name: str) -> list[tuple[str, Path]]:
+    """The files that stand for ``module_name`` (see the module docstring), each with a name that
+    does not depend on where it is installed (``package/relative/path.py``)."""
     module = importlib.import_module(module_name)
     file = getattr(module, "__file__", None)
     if not file:
@@ -34,25 +35,27 @@ def _module_sources(module_name: str) -> list[Path]:
     path = Path(file)
     package = module_name.rpartition(".")[0] if path.name != "__init__.py" else module_name
     if not package or package == "shapebench":  # a top-level module, or a core module
-        return [path]
+        return [(f"{module_name}.py", path)]
     root = Path(importlib.import_module(package).__file__).parent
-    return sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts)
+    files = sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts)
+    return [(f"{package}/{f.relative_to(root).as_posix()}", f) for f in files]
 
 
 @functools.lru_cache(maxsize=64)
-def _digest_files(paths: tuple[Path, ...]) -> str:
+def _digest_files(named: tuple[tuple[str, Path], ...]) -> str:
     h = hashlib.sha256()
-    for p in paths:
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
+    for name, path in named:  # sorted by name: the same code gives the same digest anywhere
+        h.update(name.encode() + b"\0")
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
 def code_digest(cls: type) -> str:
-    """SHA-256 (16 hex digits) over the source files ``cls``'s behaviour comes from."""
+    """SHA-256 (16 hex digits) over the source files ``cls``'s behaviour comes from; it depends
+    on the files' contents and their names within their packages, not on where they live."""
     modules = {c.__module__ for c in inspect.getmro(cls)} - _EXCLUDED
     modules |= set(getattr(cls, "code_modules", ()) or ())
-    files: set[Path] = set()
+    named: dict[str, Path] = {}
     for name in sorted(modules):
-        files.update(_module_sources(name))
-    return _digest_files(tuple(sorted(files, key=str)))
+        named.update(_module_sources(name))
+    return _digest_files(tuple(sorted(named.items())))

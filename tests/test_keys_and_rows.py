@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -99,6 +100,36 @@ def test_code_digest_follows_the_source(tmp_path, monkeypatch):
     assert cd.code_digest(cls) != first
     sys.modules.pop("digest_probe.method", None)
     sys.modules.pop("digest_probe", None)
+
+
+def test_code_digest_does_not_depend_on_where_the_code_lives(tmp_path, monkeypatch):
+    """Two checkouts (or a cluster node and a laptop) with the same code share keys, also when a
+    method's package and a shared module it names live under different roots."""
+    from shapebench import code_digest as cd
+
+    def install(method_root: Path, shared_root: Path) -> str:
+        for name in [m for m in sys.modules if m.startswith(("probe_m", "probe_shared"))]:
+            sys.modules.pop(name)
+        (method_root / "probe_m").mkdir(parents=True)
+        (method_root / "probe_m" / "__init__.py").write_text("")
+        (method_root / "probe_m" / "method.py").write_text(
+            "class M:\n    code_modules = ('probe_shared.mod',)\n"
+        )
+        (shared_root / "probe_shared").mkdir(parents=True)
+        (shared_root / "probe_shared" / "__init__.py").write_text("")
+        (shared_root / "probe_shared" / "mod.py").write_text("Y = 1\n")
+        monkeypatch.syspath_prepend(str(method_root))
+        monkeypatch.syspath_prepend(str(shared_root))
+        cls = importlib.import_module("probe_m.method").M
+        assert str(shared_root) in importlib.import_module("probe_shared.mod").__file__
+        return cd.code_digest(cls)
+
+    # The method's root sorts first in one layout and last in the other.
+    first = install(tmp_path / "a" / "m", tmp_path / "z" / "s")
+    second = install(tmp_path / "zz" / "m", tmp_path / "aa" / "s")
+    for name in [m for m in sys.modules if m.startswith(("probe_m", "probe_shared"))]:
+        sys.modules.pop(name)
+    assert first == second
 
 
 def test_an_edited_plugin_does_not_reuse_its_stale_cells(shapebench, tmp_path):
