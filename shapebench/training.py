@@ -211,8 +211,20 @@ def ensure_checkpoint(
     if quiet:
         cmd.append("--quiet")
     env = {k: v for k, v in os.environ.items() if k != RUN_ID_ENV}
+    # `python -m` would put the working directory first on sys.path: a checkout of shapebench in
+    # it would then train with other code than this process evaluates with (and under another
+    # key). PYTHONSAFEPATH (Python >= 3.11) keeps the child's imports those of this process.
+    env["PYTHONSAFEPATH"] = "1"
     proc = subprocess.run(cmd, env=env)
     record = read_done(workdir)
+    if proc.returncode == 0 and record is None:
+        raise ShapebenchError(
+            f"training {method.name} on {dataset.name} finished, but not under the checkpoint "
+            f"key {key} this process expects: the training process resolved another "
+            "configuration or imported other code",
+            "run shapebench from a directory that does not hold another copy of shapebench, or "
+            f"train alone: {' '.join(cmd[2:])}",
+        )
     if proc.returncode != 0 or record is None:
         raise ShapebenchError(
             f"training {method.name} on {dataset.name} failed (exit status {proc.returncode})",

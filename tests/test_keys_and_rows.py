@@ -419,3 +419,24 @@ def test_sweep_files_take_the_protocol_and_labels(shapebench, tmp_path):
     (run,) = shapebench.cell_runs("synthetic-novel")
     assert run.data.tags["variant.label"] == "gauss-wide"
     assert run.data.tags["protocol.frame"] == "unit-diameter"
+
+
+def test_training_child_imports_the_same_shapebench_as_its_parent(with_example):
+    """A folder named shapebench in the working directory (a second checkout) must not be what
+    the training process imports: the console script's process does not import it, and the
+    training child it starts with `python -m` must not either."""
+    import subprocess
+
+    here = with_example.workspace / "elsewhere"
+    shadow = here / "shapebench"
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text("raise ImportError('the shadow copy was imported')\n")
+    (shadow / "__main__.py").write_text("raise SystemExit('the shadow copy ran')\n")
+    script = Path(sys.executable).parent / "shapebench"
+    res = subprocess.run(
+        [str(script), "run", "-m", "example-template", *RUN, "--contexts", "50",
+         "--split", "novel"],
+        cwd=here, env=with_example.env(), capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "shadow" not in res.stderr
