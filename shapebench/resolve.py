@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,10 @@ class ResolvedMethod:
 
     def code(self) -> str:
         """Digest of the source the method's results depend on (see shapebench.code_digest)."""
+        return self._code
+
+    @functools.cached_property
+    def _code(self) -> str:  # computed once: config() runs for every cell of a run
         from shapebench.code_digest import code_digest
 
         return code_digest(self.cls)
@@ -42,6 +47,10 @@ class ResolvedMethod:
     def effective_options(self) -> Any:
         """The options as the method instance holds them: values a method fills in itself
         (recipe-dependent ``None`` options) are resolved, so params and keys show what ran."""
+        return self._effective
+
+    @functools.cached_property
+    def _effective(self) -> Any:  # one instance, not one per cell
         return getattr(self.instantiate(), "options", self.options)
 
     def config(self) -> dict[str, Any]:
