@@ -16,7 +16,7 @@ from typing import Any
 import click
 
 from shapebench import __version__
-from shapebench.errors import ShapebenchError
+from shapebench.errors import Interrupted, ShapebenchError
 
 DEFAULT_CONTEXTS = "50,100,300,1000"
 
@@ -27,6 +27,10 @@ class Group(click.Group):
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
+        except Interrupted as exc:
+            click.echo(f"\nInterrupted: {exc.message}" + (f"; {exc.hint}" if exc.hint else ""),
+                       err=True)  # fmt: skip
+            sys.exit(130)
         except ShapebenchError as exc:
             if os.environ.get("SHAPEBENCH_DEBUG"):
                 raise
@@ -95,6 +99,20 @@ def trainer_options(f):
             ("--num-nodes", dict(type=int, default=None, help="Nodes for multi-node training.")),
             ("--precision", dict(default=None, help="32-true, bf16-mixed, 16-mixed...")),
             ("--max-epochs", dict(type=int, default=None, help="Training epochs [profile].")),
+            (
+                "--checkpoint-every-epochs",
+                dict(
+                    type=int, default=None, help="Save the resumable checkpoint every N epochs [1]."
+                ),  # fmt: skip
+            ),
+            (
+                "--checkpoint-minutes",
+                dict(
+                    type=float,
+                    default=None,
+                    help="Also save it at the first epoch end after M minutes [10].",
+                ),  # fmt: skip
+            ),
         ]
     ):
         f = click.option(name, **kw)(f)
@@ -618,8 +636,17 @@ def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None
         subprocess.run(cmd, check=False, env=env)
 
 
+def _sigterm_as_interrupt(signum: int, frame: Any) -> None:
+    # A scheduler's or a parent's SIGTERM stops shapebench like Ctrl-C does: runs in progress are
+    # marked KILLED, child trainings are stopped, finished cells and checkpoints are kept.
+    raise KeyboardInterrupt
+
+
 def main() -> None:
     import logging
+    import signal
+
+    signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
 
     warnings.showwarning = _show_warning
     # MLflow's own progress bars and INFO lines would interleave with ours.

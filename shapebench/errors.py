@@ -47,3 +47,7 @@ class TrackingError(ShapebenchError):
 
 class ConfigError(ShapebenchError):
     """A configuration file or option value that cannot be used."""
+
+
+class Interrupted(ShapebenchError):
+    """Ctrl-C or SIGTERM stopped the work; the message says what was kept (exit status 130)."""

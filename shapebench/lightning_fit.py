@@ -16,17 +16,20 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytorch_lightning as pl
 import torch
-from torch.utils.data import DataLoader
+from pytorch_lightning.plugins import TorchCheckpointIO
+from pytorch_lightning.utilities.exceptions import SIGTERMException
+from torch.utils.data import DataLoader, Sampler
 from torch.utils.data import Dataset as TorchDataset
 
 from shapebench.dataset import Dataset, ObjectLoadError
-from shapebench.errors import ShapebenchError
+from shapebench.errors import Interrupted, ShapebenchError
 from shapebench.hashing import stable_seed
 from shapebench.method import TrainingContext
 from shapebench.types import TRAIN, Supervision
@@ -52,8 +55,9 @@ def global_rank() -> int:
 def step_generator(module: pl.LightningModule) -> torch.Generator:
     """The CPU generator a training step draws its subsets and sizes from.
 
-    :func:`fit_lightning` seeds it from the trainer seed and the rank (see :class:`SeedSteps`);
-    a module stepped outside ``fit`` (tests) gets one seeded from torch's global seed.
+    :func:`fit_lightning` seeds it from the trainer seed, the rank and the step (see
+    :class:`EpochSeeds`); a module stepped outside ``fit`` (tests) gets one seeded from torch's
+    global seed.
     """
     gen = getattr(module, "_step_generator", None)
     if gen is None:
@@ -62,24 +66,41 @@ def step_generator(module: pl.LightningModule) -> torch.Generator:
     return gen
 
 
-class SeedSteps(pl.Callback):
-    """Gives the module a generator for its per-step draws, seeded from (seed, rank)."""
+class EpochSeeds(pl.Callback):
+    """Reseeds every stream of random draws from (seed, rank, epoch or step).
+
+    The per-step generator (:func:`step_generator`) and torch's global generator (noise a
+    training step draws on the device) are seeded before every optimiser step from (seed, rank,
+    global step); the data draws (:class:`ShapeSamples`) and the shuffle order before every epoch
+    from (seed, rank, epoch). What an epoch computes then depends only on the weights and
+    optimiser state it starts from, which the checkpoints hold: a training resumed from an
+    epoch-end checkpoint gives bitwise the weights of an uninterrupted one.
+    """
 
     def __init__(self, seed: int) -> None:
         self.seed = seed
 
-    def on_fit_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        seed = derived_seed(self.seed, "steps", trainer.global_rank)
+    def on_train_epoch_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        data = trainer.datamodule
+        if isinstance(data, ShapeDataModule):
+            data.start_epoch(trainer.current_epoch)
+
+    def on_train_batch_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
+                             batch: Any, batch_idx: int) -> None:  # fmt: skip
+        seed = derived_seed(self.seed, "steps", trainer.global_rank, trainer.global_step)
         pl_module._step_generator = torch.Generator().manual_seed(seed)
+        torch.manual_seed(derived_seed(self.seed, "global", trainer.global_rank,
+                                       trainer.global_step))  # fmt: skip
 
 
 class ShapeSamples(TorchDataset):
     """Item i: a fresh random subset of object i's training arrays, and i (for auto-decoders).
 
-    Draws come from one generator per object, seeded from (``seed``, rank, i): an object's
-    sequence of subsets does not depend on the order objects are visited in, so two trainings
-    with the same seed see the same data. The DataLoader runs in the training process
-    (``num_workers=0``), where these generators live.
+    Draws come from one generator per object and epoch, seeded from (``seed``, rank, i, epoch):
+    an object's subsets do not depend on the order objects are visited in nor on where a
+    training was resumed, so two trainings with the same seed see the same data. The DataLoader
+    runs in the training process (``num_workers=0``), where these generators live;
+    :meth:`ShapeDataModule.start_epoch` sets :attr:`epoch`.
     """
 
     def __init__(self, objects: list[dict[str, np.ndarray]], surface_points: int,
@@ -92,6 +113,7 @@ class ShapeSamples(TorchDataset):
         self.target_points = target_points
         self.query_points = query_points
         self.seed = seed
+        self.epoch = 0
         self._generators: dict[int, torch.Generator] = {}
         for o in self.objects:
             if "sdf" in o and sdf_points:  # DeepSDF draws half of its samples outside, half inside
@@ -101,9 +123,14 @@ class ShapeSamples(TorchDataset):
     def __len__(self) -> int:
         return len(self.objects)
 
+    def set_epoch(self, epoch: int) -> None:
+        if epoch != self.epoch:
+            self.epoch = epoch
+            self._generators.clear()
+
     def generator(self, i: int) -> torch.Generator:
         if i not in self._generators:  # created lazily: the rank is known once DDP is set up
-            seed = derived_seed(self.seed, "samples", global_rank(), i)
+            seed = derived_seed(self.seed, "samples", global_rank(), i, self.epoch)
             self._generators[i] = torch.Generator().manual_seed(seed)
         return self._generators[i]
 
@@ -126,6 +153,29 @@ class ShapeSamples(TorchDataset):
             parts = [draw(s, half) for s in (o["sdf_pos"], o["sdf_neg"]) if len(s)]
             item["sdf"] = torch.cat(parts)[: self.sdf_points]
         return item
+
+
+class EpochShuffle(Sampler[int]):
+    """The objects in an order drawn from (seed, epoch) alone, when the epoch starts.
+
+    A stateful generator would make the order depend on when Lightning creates the epoch's
+    iterator relative to the epoch hooks, which differs between a fresh and a resumed training.
+    """
+
+    def __init__(self, n: int, seed: int) -> None:
+        self.n = n
+        self.seed = seed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:  # Lightning calls it before every epoch too
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __iter__(self) -> Iterator[int]:
+        gen = torch.Generator().manual_seed(derived_seed(self.seed, "order", self.epoch))
+        return iter(torch.randperm(self.n, generator=gen).tolist())
 
 
 class ShapeDataModule(pl.LightningDataModule):
@@ -154,6 +204,8 @@ class ShapeDataModule(pl.LightningDataModule):
         self.queries_from_sdf = queries_from_sdf
         self.refs = []
         self._objects: list[dict[str, np.ndarray]] = []
+        self._samples: ShapeSamples | None = None
+        self._order: EpochShuffle | None = None
 
     def load_objects(self) -> int:
         """Load (preprocessing if needed) every training object; return how many are usable."""
@@ -188,10 +240,95 @@ class ShapeDataModule(pl.LightningDataModule):
     def train_dataloader(self) -> DataLoader:
         samples = ShapeSamples(self._objects, self.surface_points, self.sdf_points,
                                self.target_points, self.query_points, self.seed)  # fmt: skip
-        # The shuffle order has its own generator: it does not depend on what else drew numbers.
-        order = torch.Generator().manual_seed(derived_seed(self.seed, "order"))
-        return DataLoader(samples, batch_size=min(self.batch_size, len(samples)), shuffle=True,
-                          num_workers=0, drop_last=False, generator=order)  # fmt: skip
+        self._samples = samples
+        self._order = EpochShuffle(len(samples), self.seed)
+        # Lightning draws the first batch of the first epoch it runs before any epoch hook: seed
+        # that epoch here (a resumed training has restored its epoch count by now).
+        trainer = getattr(self, "trainer", None)
+        self.start_epoch(trainer.fit_loop.epoch_progress.current.processed if trainer else 0)
+        return DataLoader(samples, batch_size=min(self.batch_size, len(samples)),
+                          sampler=self._order, num_workers=0, drop_last=False)  # fmt: skip
+
+    def start_epoch(self, epoch: int) -> None:
+        """Seed the shuffle order and the data draws of ``epoch`` (see :class:`EpochSeeds`)."""
+        if self._order is not None:
+            self._order.set_epoch(epoch)
+        if self._samples is not None:
+            self._samples.set_epoch(epoch)
+
+
+#: The checkpoint a training resumes from, in its private folder.
+LAST = "last.ckpt"
+
+
+class TrainingInterrupted(Interrupted):
+    """Ctrl-C or SIGTERM stopped a training; its last epoch-end checkpoint is kept."""
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Writes a checkpoint beside its destination, flushes it to disk, then renames it over the
+    destination: a kill at any moment leaves either the previous checkpoint or the new one,
+    never a truncated file."""
+
+    def save_checkpoint(self, checkpoint: dict[str, Any], path: Any,
+                        storage_options: Any | None = None) -> None:  # fmt: skip
+        import os
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            torch.save(checkpoint, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+
+class EpochCheckpoints(pl.Callback):
+    """Saves ``last.ckpt`` at the end of every ``every_epochs``-th epoch, at the end of the first
+    epoch after ``minutes`` have passed since the last save, and at the last epoch.
+
+    Only epoch ends are saved: what an epoch computes depends on nothing but the state it starts
+    from (:class:`EpochSeeds`), so resuming from an epoch end gives exactly the weights of an
+    uninterrupted training, where a mid-epoch checkpoint could not. An interruption therefore
+    loses at most the epoch in progress. The checkpoint records its checkpoint key (the name of
+    the training's folder) under ``"shapebench"``.
+    """
+
+    def __init__(self, path: Path, key: str, every_epochs: int = 1, minutes: float = 0.0) -> None:
+        self.path = path
+        self.key = key
+        self.every_epochs = max(int(every_epochs), 0)
+        self.seconds = max(float(minutes), 0.0) * 60
+        self._last = time.monotonic()
+        #: Epochs completed by the last save (-1: none in this process).
+        self.saved_epochs = -1
+
+    def on_train_epoch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        done = trainer.current_epoch + 1
+        due = (
+            (self.every_epochs and done % self.every_epochs == 0)
+            or (self.seconds and time.monotonic() - self._last >= self.seconds)
+            or (trainer.max_epochs is not None and done >= trainer.max_epochs)
+        )
+        # Every rank must take the same decision: saving is a collective call under DDP.
+        if trainer.strategy.broadcast(bool(due), src=0):
+            trainer.save_checkpoint(self.path)
+            self._last = time.monotonic()
+            self.saved_epochs = done
+
+    def on_save_checkpoint(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
+                           checkpoint: dict[str, Any]) -> None:  # fmt: skip
+        checkpoint["shapebench"] = {"key": self.key}
+
+
+def checkpoint_epochs(path: Path) -> int | None:
+    """How many epochs the checkpoint at ``path`` completed, or None if it cannot be read."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:
+        return None
+    return int(state.get("epoch", -1)) + 1
 
 
 def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext,
@@ -199,16 +336,20 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     """One ``Trainer.fit``; resumes from ``<workdir>/last.ckpt``; returns that checkpoint.
 
     Reproducible: Lightning's ``seed_everything`` seeds the global generators (weight
-    initialisation, noise drawn on the device), the data draws, the shuffle order and the
-    per-step subsets have generators of their own seeded from the trainer seed, and torch runs
-    its deterministic algorithms where it has them (``deterministic="warn"``). Two trainings
-    with the same seed, data and options give bitwise-identical weights on one device; a resumed
-    training restarts the generators, so it is not bitwise-identical to an uninterrupted one.
+    initialisation), and every later draw (data subsets, shuffle order, per-step subsets, noise
+    drawn on the device) is reseeded per epoch or per step from the trainer seed
+    (:class:`EpochSeeds`); torch runs its deterministic algorithms where it has them
+    (``deterministic="warn"``). Two trainings with the same seed, data and options give
+    bitwise-identical weights on one device, and so does a training interrupted and resumed
+    from its last epoch-end checkpoint (:class:`EpochCheckpoints`).
+
+    Ctrl-C and SIGTERM (a parent that died, a scheduler's pre-emption) stop it at the end of the
+    current optimiser step and raise :class:`TrainingInterrupted`, saying which epoch the rerun
+    resumes from.
     """
     import logging
     import warnings
 
-    from pytorch_lightning.callbacks import ModelCheckpoint
     from pytorch_lightning.loggers import MLFlowLogger
 
     t = ctx.trainer
@@ -218,19 +359,38 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
     logger = (MLFlowLogger(tracking_uri=ctx.tracking_uri, run_id=ctx.run_id)
               if ctx.run_id else False)  # fmt: skip
-    checkpoint = ModelCheckpoint(dirpath=ctx.workdir, save_last=True, save_top_k=0,
-                                 every_n_epochs=1)  # fmt: skip
+    last = ctx.workdir / LAST
+    saver = EpochCheckpoints(last, ctx.workdir.name, t.checkpoint_every_epochs,
+                             t.checkpoint_minutes)  # fmt: skip
     trainer = pl.Trainer(
         accelerator=t.accelerator, devices=t.devices, strategy=t.strategy, num_nodes=t.num_nodes,
         precision=t.precision, max_epochs=t.max_epochs or max_epochs, logger=logger,
-        callbacks=[checkpoint, SeedSteps(t.seed)], default_root_dir=ctx.workdir,
+        callbacks=[saver, EpochSeeds(t.seed)], default_root_dir=ctx.workdir,
+        enable_checkpointing=False, plugins=[AtomicCheckpointIO()],
         log_every_n_steps=1, enable_model_summary=False, enable_progress_bar=not ctx.quiet,
         deterministic="warn",
     )  # fmt: skip
-    last = ctx.workdir / "last.ckpt"
+    resumed = checkpoint_epochs(last) if last.exists() else None
+    if last.exists() and resumed is None:
+        print(f"checkpoint {last} cannot be read (truncated or corrupt): training from epoch 0",
+              file=sys.stderr)  # fmt: skip
+        last.unlink()
+    elif resumed is not None and not ctx.quiet and trainer.is_global_zero:
+        print(f"resuming from {last} ({resumed} epochs done)", file=sys.stderr)
     start = time.perf_counter()
-    trainer.fit(module, datamodule=data, ckpt_path=str(last) if last.exists() else None)
+    try:
+        trainer.fit(module, datamodule=data, ckpt_path=str(last) if last.exists() else None)
+    except (SystemExit, KeyboardInterrupt, SIGTERMException) as exc:
+        # Lightning turns Ctrl-C into SystemExit(1) after its own clean-up.
+        epochs = checkpoint_epochs(last) if last.exists() else None
+        kept = (f"its checkpoint after epoch {epochs} is kept at {last}" if epochs
+                else "no epoch had finished, nothing was saved")  # fmt: skip
+        raise TrainingInterrupted(
+            f"training interrupted during epoch {trainer.current_epoch + 1}; {kept}",
+            "run the same command again to resume",
+        ) from exc
     summary = training_summary(trainer, time.perf_counter() - start)
+    summary["resumed_from_epoch"] = resumed or 0
     if trainer.is_global_zero:
         report_summary(summary, logger or None, quiet=ctx.quiet)
         (ctx.workdir / SUMMARY_FILE).write_text(json.dumps(summary, indent=1))

@@ -44,6 +44,11 @@ class TrainerOptions:
     precision: str = "32-true"
     max_epochs: int | None = None
     seed: int = 0
+    #: Save ``last.ckpt`` every this many epochs (0: only at the time interval and the end) ...
+    checkpoint_every_epochs: int = 1
+    #: ... and at the end of the first epoch after this many minutes since the last save (0:
+    #: never). Neither changes the trained weights: they are not part of the checkpoint key.
+    checkpoint_minutes: float = 10.0
 
 
 @dataclass(frozen=True)

@@ -320,49 +320,93 @@ class Runner:
             )
             if method is None:
                 method = make_method()
-            parent_key = stable_hash(
-                {
-                    "method": plan.method.config(),
-                    "variant": plan.variant.key if plan.variant else None,
-                    "dataset": plan.dataset.fingerprint(),
-                    "split": split,
-                }
-            )
-            self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
-            parent = self.tracker.start_run(
-                exp_id,
-                f"{self._label(plan)} on {plan.dataset.name}/{split}",
-                {
-                    "shapebench.parent_key": parent_key,
-                    "shapebench.kind": PARENT_KIND,
-                    "method": plan.method.name,
-                    "dataset": plan.dataset.name,
-                    "split": split,
-                },
-            )
-            try:
-                for seed, size, cfg, key in pending:
-                    results.append(
-                        self._run_cell(
-                            plan,
-                            method,
-                            split,
-                            refs,
-                            cache,
-                            store,
-                            exp_id,
-                            parent,
-                            seed,
-                            size,
-                            cfg,
-                            key,
-                        )
-                    )
-            except BaseException:
-                self.tracker.end(parent, "KILLED")
-                raise
-            self.tracker.end(parent)
+            results += self._run_pending(plan, method, split, refs, cache, store, exp_id, pending)
         return results
+
+    def _run_pending(self, plan, method, split, refs, cache, store, exp_id, pending):
+        """Compute the pending cells of a split, each under a claim (a lock per cell key): a cell
+        another process is computing is left to it and its result read back at the end; a claim
+        whose process died is free again (the kernel drops its lock)."""
+        from shapebench.locks import try_lock, wait_lock
+        from shapebench.tracking import cell_lock_path
+
+        parent: str | None = None
+        parent_lock = None
+        results: list[CellResult] = []
+        deferred = []
+
+        def start_parent() -> str:
+            nonlocal parent, parent_lock
+            if parent is None:
+                parent, parent_lock = self._start_parent(plan, split, exp_id)
+            return parent
+
+        def compute(seed, size, cfg, key) -> None:
+            # Finished by another process since we looked (unless recomputing on purpose).
+            done = None if plan.force else self.tracker.find_cell(exp_id, key)
+            if done is not None:
+                results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
+                                          exp_id))  # fmt: skip
+                return
+            results.append(self._run_cell(plan, method, split, refs, cache, store, exp_id,
+                                          start_parent(), seed, size, cfg, key))  # fmt: skip
+
+        settings = self.tracker.settings
+        try:
+            for seed, size, cfg, key in pending:
+                lock = try_lock(cell_lock_path(settings, key))
+                if lock is None:  # another process is computing it: come back at the end
+                    deferred.append((seed, size, cfg, key))
+                    continue
+                with lock:
+                    compute(seed, size, cfg, key)
+            for seed, size, cfg, key in deferred:
+
+                def waiting(holder: str, size: int = size) -> None:
+                    self.echo(f"  k={size}: waiting for {holder}, which is computing this cell")
+
+                with wait_lock(cell_lock_path(settings, key), waiting):
+                    compute(seed, size, cfg, key)
+        except BaseException:
+            if parent is not None:
+                self.tracker.end(parent, "KILLED")
+            raise
+        finally:
+            if parent_lock is not None:
+                parent_lock.release()
+        if parent is not None:
+            self.tracker.end(parent)
+        return sorted(results, key=lambda r: (r.seed, r.context_size))
+
+    def _start_parent(self, plan: RunPlan, split: str, exp_id: str):
+        """The parent run of this plan's new cells on ``split``, and the lock that shows it is
+        alive: RUNNING parents of the same key are marked KILLED only when nobody holds it."""
+        from shapebench.locks import try_lock
+        from shapebench.tracking import cell_lock_path
+
+        parent_key = stable_hash(
+            {
+                "method": plan.method.config(),
+                "variant": plan.variant.key if plan.variant else None,
+                "dataset": plan.dataset.fingerprint(),
+                "split": split,
+            }
+        )
+        lock = try_lock(cell_lock_path(self.tracker.settings, "parent-" + parent_key))
+        if lock is not None:
+            self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
+        parent = self.tracker.start_run(
+            exp_id,
+            f"{self._label(plan)} on {plan.dataset.name}/{split}",
+            {
+                "shapebench.parent_key": parent_key,
+                "shapebench.kind": PARENT_KIND,
+                "method": plan.method.name,
+                "dataset": plan.dataset.name,
+                "split": split,
+            },
+        )
+        return parent, lock
 
     def _run_cell(
         self, plan, method, split, refs, cache, store, exp_id, parent, seed, size, cfg, key

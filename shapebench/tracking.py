@@ -7,6 +7,10 @@ cell's whole resolved config. A cell whose key already has a FINISHED run is ski
 runs and sweeps resumable after Ctrl-C or ``kill -9``; a RUNNING run left behind by a killed
 process is marked KILLED when its cell is run again.
 
+Several processes may share one workspace: the embedded store's schema is created under a lock
+(:func:`_open_store`), and the runner claims each cell with a lock before computing it
+(:func:`cell_lock_path`), so two runs started together compute and log every cell once.
+
 All logging goes through an explicit :class:`~mlflow.tracking.MlflowClient` with an explicit URI:
 MLflow >= 3.13 refuses the implicit ``./mlruns`` file store.
 """
@@ -68,6 +72,7 @@ class Tracker:
         self.uri = settings.tracking_uri
         self.client = MlflowClient(tracking_uri=self.uri)
         self._experiments: dict[str, str] = {}
+        _open_store(self.client, self.uri)
 
     def experiment_id(self, name: str, create: bool = True) -> str | None:
         if name in self._experiments:
@@ -81,11 +86,23 @@ class Tracker:
                 path = self.settings.artifact_root / name
                 path.mkdir(parents=True, exist_ok=True)
                 location = path.as_uri()
-            exp_id = self.client.create_experiment(name, artifact_location=location)
+            exp_id = self._create_experiment(name, location)
         else:
             exp_id = exp.experiment_id
         self._experiments[name] = exp_id
         return exp_id
+
+    def _create_experiment(self, name: str, location: str | None) -> str:
+        from mlflow.exceptions import MlflowException
+
+        try:
+            return self.client.create_experiment(name, artifact_location=location)
+        except MlflowException:
+            # Another process created it between our lookup and our creation: use theirs.
+            exp = self.client.get_experiment_by_name(name)
+            if exp is None:
+                raise
+            return exp.experiment_id
 
     def find_cell(self, exp_id: str, key: str) -> FinishedCell | None:
         finished = "attributes.status = 'FINISHED'"
@@ -140,6 +157,27 @@ class Tracker:
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)
+
+
+def _open_store(client: Any, uri: str) -> None:
+    """Make the embedded store exist before anything else touches it.
+
+    MLflow creates a new SQLite store's schema on first use; two processes doing that at once
+    make the second fail (``duplicate column name``). The first use happens here, under a lock
+    beside the database file.
+    """
+    if not uri.startswith("sqlite:///"):
+        return
+    from shapebench.locks import wait_lock
+
+    db = Path(uri[len("sqlite:///") :])
+    with wait_lock(db.with_name(db.name + ".init.lock")):
+        client.search_experiments(max_results=1)
+
+
+def cell_lock_path(settings: Settings, key: str) -> Path:
+    """The lock a process holds while it computes the cell with this key."""
+    return settings.artifact_root.parent / "locks" / "cells" / f"{key}.lock"
 
 
 def _param_str(value: Any) -> str:

@@ -2,18 +2,26 @@
 
 Lightning's DDP supports one ``Trainer.fit`` per process (its subprocess launcher re-runs the
 command line for every rank), so ``shapebench run`` and ``sweep`` never call ``fit`` themselves:
-when a method trains and no checkpoint exists for its (method config, dataset, seed), they start
+when a method trains and no checkpoint exists for its key (:func:`checkpoint_key`), they start
 ``python -m shapebench train ...`` as a child process and wait for it. The checkpoint directory
-holds ``done.json`` once training finished; an interrupted training leaves its last checkpoint
-there for the method to resume from.
+holds ``done.json`` once training finished; an interrupted training leaves its last epoch-end
+checkpoint there and the next training of that key resumes from it.
+
+One training per key at a time: the training process holds a lock (:mod:`shapebench.locks`)
+beside the key's folder; a second process for the same key waits for it, then finds
+``done.json`` and trains nothing. A child training dies with the process that started it (a
+watchdog thread, :func:`watch_parent`), so a killed ``run`` or ``sweep`` leaves no orphan.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import threading
+import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -27,6 +35,10 @@ from shapebench.resolve import ResolvedMethod
 from shapebench.tracking import TRAINING_KIND, Tracker, flatten
 
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
+#: The pid of the process that started this training and waits for it (see watch_parent).
+PARENT_ENV = "SHAPEBENCH_PARENT_PID"
+#: How long a child training gets to stop cleanly after its parent was interrupted.
+CHILD_GRACE_SECONDS = 30
 
 
 def trainer_options(settings: Settings, seed: int, **given: Any) -> TrainerOptions:
@@ -111,6 +123,31 @@ def read_done(workdir: Path) -> dict[str, Any] | None:
     return json.loads(done.read_text()) if done.exists() else None
 
 
+def lock_path(workdir: Path) -> Path:
+    """The lock beside a checkpoint key's folder, held while that key trains."""
+    return workdir.with_name(workdir.name + ".lock")
+
+
+def watch_parent() -> None:
+    """Stop this training (SIGTERM, handled like Ctrl-C) when the process that started it dies.
+
+    The parent names itself in ``SHAPEBENCH_PARENT_PID``; a thread polls ``os.getppid()``,
+    which changes when the parent dies (the child is re-parented), even after ``kill -9``. The
+    ranks Lightning launches inherit the variable but have another parent: they are left to
+    Lightning, which stops them with rank 0.
+    """
+    expected = os.environ.get(PARENT_ENV, "")
+    if not expected.isdigit() or os.getppid() != int(expected):
+        return
+
+    def poll() -> None:
+        while os.getppid() == int(expected):
+            time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=poll, name="shapebench-parent-watchdog", daemon=True).start()
+
+
 def train_here(
     method: ResolvedMethod,
     dataset: Dataset,
@@ -118,26 +155,57 @@ def train_here(
     settings: Settings,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    """Train in this process (the ``shapebench train`` command); return the checkpoint record."""
+    """Train in this process (the ``shapebench train`` command); return the checkpoint record.
+
+    Resumes from the key's last epoch-end checkpoint when an earlier training was interrupted;
+    waits for, then reuses, a training of the same key running in another process.
+    """
+    from shapebench.locks import wait_lock
+
     method = apply_trainer(method, trainer)
     key = checkpoint_key(method, dataset, trainer)
     workdir = checkpoint_dir(settings, method, key)
     workdir.mkdir(parents=True, exist_ok=True)
     run_id = os.environ.get(RUN_ID_ENV)
+    lead = _global_rank() == 0 and not run_id  # not a rank Lightning launched
+    lock = None
+    if lead:
+        watch_parent()
+
+        def waiting(holder: str) -> None:
+            print(f"waiting for {holder}, which is training {method.name} on {dataset.name} "
+                  f"(checkpoint key {key})", file=sys.stderr)  # fmt: skip
+
+        lock = wait_lock(lock_path(workdir), waiting)
+    try:
+        if lead:
+            record = read_done(workdir)
+            if record is not None:  # trained by the process we waited for
+                return record
+        return _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id):
+    from shapebench.lightning_fit import LAST, TrainingInterrupted
+
     tracker = None
     if _global_rank() == 0 and not run_id:
         tracker = Tracker(settings)
         exp = tracker.experiment_id(f"{dataset.name}-train")
-        run_id = tracker.start_run(
-            exp,
-            f"train {method.name} on {dataset.name}",
-            {
-                "shapebench.kind": TRAINING_KIND,
-                "method": method.name,
-                "dataset": dataset.name,
-                "checkpoint_key": key,
-            },
-        )
+        # We hold the key's lock: a RUNNING training of this key was left by a killed process.
+        tracker.abandon_stale(exp, key, tag="checkpoint_key")
+        tags = {
+            "shapebench.kind": TRAINING_KIND,
+            "method": method.name,
+            "dataset": dataset.name,
+            "checkpoint_key": key,
+        }
+        if (workdir / LAST).exists():
+            tags["resumed"] = "true"
+        run_id = tracker.start_run(exp, f"train {method.name} on {dataset.name}", tags)
         tracker.log_params(
             run_id,
             flatten(
@@ -156,13 +224,16 @@ def train_here(
         path = instance.fit(
             TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id, quiet)
         )
-    except BaseException:
+    except BaseException as exc:
         if tracker is not None:
-            tracker.end(run_id, "FAILED")
+            interrupted = isinstance(exc, (TrainingInterrupted, KeyboardInterrupt))
+            tracker.end(run_id, "KILLED" if interrupted else "FAILED")
         raise
     record = {"key": key, "path": str(path), "run_id": run_id}
     if _global_rank() == 0:
-        (workdir / "done.json").write_text(json.dumps(record))
+        tmp = workdir / "done.json.tmp"
+        tmp.write_text(json.dumps(record))
+        tmp.replace(workdir / "done.json")
         if tracker is not None:
             tracker.end(run_id)
     return record
@@ -215,9 +286,10 @@ def ensure_checkpoint(
     # it would then train with other code than this process evaluates with (and under another
     # key). PYTHONSAFEPATH (Python >= 3.11) keeps the child's imports those of this process.
     env["PYTHONSAFEPATH"] = "1"
-    proc = subprocess.run(cmd, env=env)
+    env[PARENT_ENV] = str(os.getpid())
+    returncode = _wait_child(subprocess.Popen(cmd, env=env))
     record = read_done(workdir)
-    if proc.returncode == 0 and record is None:
+    if returncode == 0 and record is None:
         raise ShapebenchError(
             f"training {method.name} on {dataset.name} finished, but not under the checkpoint "
             f"key {key} this process expects: the training process resolved another "
@@ -225,9 +297,24 @@ def ensure_checkpoint(
             "run shapebench from a directory that does not hold another copy of shapebench, or "
             f"train alone: {' '.join(cmd[2:])}",
         )
-    if proc.returncode != 0 or record is None:
+    if returncode != 0 or record is None:
         raise ShapebenchError(
-            f"training {method.name} on {dataset.name} failed (exit status {proc.returncode})",
+            f"training {method.name} on {dataset.name} failed (exit status {returncode})",
             f"run it alone to see the details: {' '.join(cmd[2:])}",
         )
     return record
+
+
+def _wait_child(proc: subprocess.Popen) -> int:
+    """Wait for a child training; when this process is interrupted, give the child time to stop
+    cleanly (it got the same Ctrl-C, or gets SIGTERM here) before killing it."""
+    try:
+        return proc.wait()
+    except BaseException:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=CHILD_GRACE_SECONDS)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        raise
