@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from shapebench.checkpoints import describe, warn_corrupt
 from shapebench.hashing import stable_hash, stable_seed
 from shapebench.options import NoOptions
 from shapebench.preprocess import (
@@ -279,23 +280,33 @@ _EXTRA_ARRAYS = {
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray] | None:
-    """The arrays of ``path``, or None if it is missing or truncated (then it is rebuilt)."""
-    if not path.exists():
-        return None
+    """The arrays of ``path``; None when it is missing, or damaged (truncated, or a member whose
+    CRC-32 does not match, which numpy's zip reader checks): a damaged file is reported in one
+    line naming it and deleted, and the caller rebuilds it."""
     try:
-        with np.load(path) as z:
-            return {k: z[k] for k in z.files}
-    except Exception:
+        # Our own handle: np.load leaks the one it opens when the archive is truncated.
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}  # reading each member to its end checks its CRC
+    except FileNotFoundError:
         return None
+    except Exception as exc:  # BadZipFile, EOFError, ValueError: not a complete archive
+        reason = describe(exc)
+    warn_corrupt(path, reason, "deleting it and preprocessing the object again")
+    path.unlink(missing_ok=True)
+    return None
 
 
 def save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """Write ``arrays`` to ``path`` so that a crash never leaves a half-written file."""
+    """Write ``arrays`` to ``path`` so that a crash never leaves a half-written file: a
+    temporary file of its own, flushed to disk (a rename may otherwise reach the disk before the
+    data and leave an empty file after a power loss), then renamed."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp.npz")
-    os.close(fd)
     try:
-        np.savez(tmp, **arrays)
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -319,7 +319,9 @@ class EpochCheckpoints(pl.Callback):
 
     def on_save_checkpoint(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
                            checkpoint: dict[str, Any]) -> None:  # fmt: skip
-        checkpoint["shapebench"] = {"key": self.key}
+        from shapebench.checkpoints import STAMP
+
+        checkpoint[STAMP] = {"key": self.key}
 
 
 def checkpoint_epochs(path: Path) -> int | None:
@@ -329,6 +331,31 @@ def checkpoint_epochs(path: Path) -> int | None:
     except Exception:
         return None
     return int(state.get("epoch", -1)) + 1
+
+
+def _resumable_epochs(last: Path, key: str) -> int | None:
+    """Epochs done by the checkpoint to resume from, or None when there is none. A damaged one
+    is reported and deleted (training restarts from epoch 0); one stamped with another key is
+    refused, naming both."""
+    import warnings
+
+    from shapebench.checkpoints import (
+        CorruptFileWarning,
+        checkpoint_is_readable,
+        key_of,
+        verify_checkpoint,
+    )
+
+    if not last.exists():
+        return None
+    problem = checkpoint_is_readable(last)
+    if problem:
+        warnings.warn(f"{problem}; training from epoch 0", CorruptFileWarning, stacklevel=2)
+        last.unlink(missing_ok=True)
+        return None
+    if key_of(last) not in (None, key):
+        verify_checkpoint(last, key)  # raises, naming both keys
+    return checkpoint_epochs(last)
 
 
 def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext,
@@ -370,12 +397,8 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
         log_every_n_steps=1, enable_model_summary=False, enable_progress_bar=not ctx.quiet,
         deterministic="warn",
     )  # fmt: skip
-    resumed = checkpoint_epochs(last) if last.exists() else None
-    if last.exists() and resumed is None:
-        print(f"checkpoint {last} cannot be read (truncated or corrupt): training from epoch 0",
-              file=sys.stderr)  # fmt: skip
-        last.unlink()
-    elif resumed is not None and not ctx.quiet and trainer.is_global_zero:
+    resumed = _resumable_epochs(last, ctx.workdir.name)
+    if resumed and not ctx.quiet and trainer.is_global_zero:
         print(f"resuming from {last} ({resumed} epochs done)", file=sys.stderr)
     start = time.perf_counter()
     try:

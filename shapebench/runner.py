@@ -432,6 +432,7 @@ class Runner:
                             row.update(status="failed", error=str(exc), seconds=0.0)
                             bar.update()
                             continue
+                        row["gt_points"] = len(data.gt_points)
                         contexts.append(ctx)
                         ready.append((row, data, ctx))
                     if not ready:
@@ -448,6 +449,7 @@ class Runner:
                         bar.update()
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
+            self._check_gt_points(plan, run_id, table)
             tr.log_params(run_id, flatten("", cfg))
             tr.log_metrics(run_id, summary, step=size)
             tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
@@ -460,6 +462,22 @@ class Runner:
         return CellResult(
             split, size, seed, run_id, False, summary, exp_id, failure_reasons(table), uri
         )
+
+    def _check_gt_points(self, plan: RunPlan, run_id: str, table: pd.DataFrame) -> None:
+        """The card promises ``gt_points`` evaluation points per object; a dataset that has
+        fewer for some object (a sparse RGB-D fusion) is said so, and the real number recorded
+        on the run (tag ``card.eval_points_actual``, column ``gt_points`` of the table)."""
+        promised = int(getattr(plan.dataset.options, "gt_points", 0) or 0)
+        if not promised or "gt_points" not in table or table["gt_points"].isna().all():
+            return
+        fewest = int(table["gt_points"].min())
+        if fewest >= promised:
+            return
+        short = int((table["gt_points"] < promised).sum())
+        self.tracker.client.set_tag(run_id, "card.eval_points_actual", str(fewest))
+        self.echo(f"  warning: {short} object(s) of {plan.dataset.name} have fewer ground-truth "
+                  f"points than the {promised} the metric card states (fewest: {fewest}); "
+                  "the real counts are in per_object.csv")  # fmt: skip
 
     @staticmethod
     def _label(plan: RunPlan) -> str:

@@ -66,13 +66,10 @@ class Tracker:
 
     def __init__(self, settings: Settings) -> None:
         check_reachable(settings.tracking_uri)
-        from mlflow.tracking import MlflowClient
-
         self.settings = settings
         self.uri = settings.tracking_uri
-        self.client = MlflowClient(tracking_uri=self.uri)
+        self.client = open_client(self.uri)
         self._experiments: dict[str, str] = {}
-        _open_store(self.client, self.uri)
 
     def experiment_id(self, name: str, create: bool = True) -> str | None:
         if name in self._experiments:
@@ -159,20 +156,22 @@ class Tracker:
         self.client.set_terminated(run_id, status=status)
 
 
-def _open_store(client: Any, uri: str) -> None:
-    """Make the embedded store exist before anything else touches it.
+def open_client(uri: str) -> Any:
+    """An ``MlflowClient`` for ``uri``; an embedded store is opened under a lock.
 
-    MLflow creates a new SQLite store's schema on first use; two processes doing that at once
-    make the second fail (``duplicate column name``). The first use happens here, under a lock
-    beside the database file.
+    MLflow creates (or upgrades) a SQLite store's schema when a client opens it; two processes
+    doing that at once make the second fail (``duplicate column name``). The lock beside the
+    database file makes them take turns.
     """
+    from mlflow.tracking import MlflowClient
+
     if not uri.startswith("sqlite:///"):
-        return
+        return MlflowClient(tracking_uri=uri)
     from shapebench.locks import wait_lock
 
     db = Path(uri[len("sqlite:///") :])
     with wait_lock(db.with_name(db.name + ".init.lock")):
-        client.search_experiments(max_results=1)
+        return MlflowClient(tracking_uri=uri)
 
 
 def cell_lock_path(settings: Settings, key: str) -> Path:

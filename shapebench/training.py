@@ -22,6 +22,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -119,8 +120,25 @@ def _global_rank() -> int:
 
 
 def read_done(workdir: Path) -> dict[str, Any] | None:
+    """The record of the finished training in ``workdir``, or None when there is none or it is
+    damaged: a ``done.json`` that does not parse, or whose checkpoint no longer loads or holds
+    another key, is reported and removed, so that the key trains again."""
+    from shapebench.checkpoints import CorruptFileWarning, checkpoint_problem
+
     done = workdir / "done.json"
-    return json.loads(done.read_text()) if done.exists() else None
+    if not done.exists():
+        return None
+    try:
+        record = json.loads(done.read_text())
+        problem = checkpoint_problem(Path(record["path"]), workdir.name)
+    except (ValueError, KeyError, TypeError) as exc:
+        problem = f"{done} is damaged ({type(exc).__name__}: {exc})"
+    if problem is None:
+        return record
+    warnings.warn(f"{problem}; training it again", CorruptFileWarning, stacklevel=2)
+    done.unlink(missing_ok=True)
+    (workdir / "last.ckpt").unlink(missing_ok=True)
+    return None
 
 
 def lock_path(workdir: Path) -> Path:

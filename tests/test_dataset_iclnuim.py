@@ -231,3 +231,64 @@ def test_real_office_frames_agree_with_the_camera_model():
 
     flipped = fusion.Intrinsics(K.fx, -K.fy, K.cx, K.cy, K.depth_scale)
     assert overlap(K) > 0.85 > 0.6 > overlap(flipped)
+
+
+def copy_real(folder: Path, frames, spoil: bool) -> None:
+    """Real ICL-NUIM frames in their own TUM-layout folder, optionally with sensor artefacts."""
+    (folder / "depth").mkdir(parents=True)
+    for i in frames:
+        raw = iio.imread(REAL / "depth" / f"{i}.png")
+        if spoil:
+            raw[200:260, 100:300] = 65535  # invalid code: 13.1 m at depth scale 5000
+            raw[:40, :] = 0
+        iio.imwrite(folder / "depth" / f"{i}.png", raw)
+    lines = [f"{i} depth/{i}.png {i} rgb/{i}.png" for i in frames]
+    (folder / "associations.txt").write_text("\n".join(lines) + "\n")
+    (folder / "traj0.gt.freiburg").write_text((REAL / "traj0.gt.freiburg").read_text())
+
+
+@needs_real
+def test_real_frames_with_invalid_depth_codes_keep_the_scene(tmp_path):
+    """65535 pixels in real ICL-NUIM frames must not become points 13 m away: every point of the
+    spoiled scene lies on the clean one, and the normalisation radius stays the room's."""
+    frames = range(2, 11)
+    for name, spoil in (("clean", False), ("spoiled", True)):
+        copy_real(tmp_path / name / "traj0_frei_png", frames, spoil)
+
+    def world(name):
+        ds = icl(tmp_path / name, tmp_path / f"cache-{name}", frame_stride=4, voxel_size=0.05)
+        ref = ds.objects("all")[0]
+        data = ds.load(ref)
+        with np.load(ds.cache_path(ref)) as cached:
+            scale = float(cached["scale"])
+            return data.gt_points.astype(np.float64) * scale + cached["center"], scale
+
+    clean, clean_scale = world("clean")
+    spoiled, spoiled_scale = world("spoiled")
+    distance, _ = cKDTree(clean).query(spoiled)
+    assert distance.max() < 0.5  # metres (2000-point samples of each): none off the clean scene
+    assert spoiled_scale < 1.2 * clean_scale
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="the real ICL-NUIM sample is not here")
+def test_run_says_why_a_scene_failed_and_that_the_card_promises_too_many_points(
+    shapebench, tmp_path
+):
+    """On the console, not only in per_object.csv: a scene without trajectory, and a fused
+    cloud holding fewer points than the card's gt_points (the real count goes on the run)."""
+    root = tmp_path / "icl"
+    (root / "office").mkdir(parents=True)
+    (root / "office" / "traj0").symlink_to(REAL)
+    broken = root / "office" / "broken" / "depth"
+    broken.mkdir(parents=True)
+    (broken / "1.png").write_bytes((REAL / "depth" / "1.png").read_bytes())
+    res = shapebench("run", "-m", "gauss", "-d", "icl-nuim", "--data-root", str(root),
+                     "-D", "surface_candidates=3000", "-D", "gt_points=500000", "--contexts", "50",
+                     "-q")  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    out = res.stdout + res.stderr
+    assert "scene office/broken: no camera trajectory" in out
+    assert "fewer ground-truth points than the 500000 the metric card states" in out
+    (run,) = shapebench.cell_runs("icl-nuim-all")
+    actual = int(run.data.tags["card.eval_points_actual"])
+    assert 0 < actual < 500000

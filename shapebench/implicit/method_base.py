@@ -63,10 +63,14 @@ class LightningMethod(Method):
         return fit_lightning(self.build_module(n_shapes), data, ctx, self.options.epochs)
 
     def load_checkpoint(self, path: Path) -> None:
+        """Load ``Module`` from ``path``; the file may come from the user (``--checkpoint``), so
+        it is read with ``weights_only=True`` after a checksum test: a damaged file or a pickled
+        payload raises a :class:`~shapebench.errors.ShapebenchError` naming it."""
+        from shapebench.checkpoints import load_module
         from shapebench.lightning_fit import device
 
         self.device = device()
-        self.module = self.Module.load_from_checkpoint(str(path), map_location=self.device)
+        self.module = load_module(self.Module, Path(path), self.device)
         self.module.eval()
         for p in self.module.parameters():
             p.requires_grad_(False)

@@ -1,0 +1,157 @@
+"""Nothing lost when work is interrupted: resumable training, no orphans, concurrent runs.
+
+Every test drives the real CLI in child processes and interrupts it the way users do (Ctrl-C,
+``kill``, ``kill -9``), then checks the checkpoints, the MLflow store and the process table.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+from conftest import TINY
+
+from shapebench.lightning_fit import checkpoint_epochs
+
+#: A tiny IGR trained long enough (about 0.1 s per epoch) to be interrupted mid-way.
+IGR = ["-m", "igr", "-d", "synthetic", *TINY, "-O", "latent_dim=8", "-O", "width=32",
+       "-O", "depth=2", "-O", "batch_shapes=4", "-O", "surface_points=64",
+       "-O", "mesh_resolution=32", "-O", "opt_steps=5"]  # fmt: skip
+
+
+def wait_for(condition: Callable[[], object], timeout: float = 120, what: str = "") -> object:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what or condition}")
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """Live processes whose command line contains ``text`` (zombies excluded)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit() or int(proc.name) == os.getpid():
+            continue
+        try:
+            cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            state = (proc / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if text in cmdline and state != "Z":
+            found.append(int(proc.name))
+    return found
+
+
+def last_ckpt(sb) -> Path | None:
+    found = list((sb.workspace / "checkpoints" / "igr").glob("*/last.ckpt"))
+    return found[0] if found else None
+
+
+def saved_epochs(sb) -> int:
+    path = last_ckpt(sb)
+    return (checkpoint_epochs(path) or 0) if path else 0
+
+
+def training_runs(sb, status: str | None = None):
+    client = sb.client()
+    exp = client.get_experiment_by_name("synthetic-train")
+    runs = client.search_runs([exp.experiment_id]) if exp else []
+    return [r for r in runs if status is None or r.info.status == status]
+
+
+def weights(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
+
+
+def test_killed_training_resumes_from_its_saved_epoch_to_the_same_weights(shapebench, tmp_path):
+    sb = shapebench
+    args = ["train", *IGR, "-O", "epochs=150"]
+    proc = sb.popen(*args)
+    wait_for(lambda: saved_epochs(sb) >= 3, what="3 epochs saved")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed_at = saved_epochs(sb)
+    assert 3 <= killed_at < 150
+    assert [r.info.status for r in training_runs(sb)] == ["RUNNING"]
+
+    res = sb(*args)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert f"({killed_at} epochs done)" in res.stderr  # resumed, not restarted from epoch 0
+    path = last_ckpt(sb)
+    summary = json.loads((path.parent / "summary.json").read_text())
+    assert summary["resumed_from_epoch"] == killed_at
+    # The killed training's run is closed; the resumed one is marked as such.
+    runs = {r.info.status: r for r in training_runs(sb)}
+    assert sorted(runs) == ["FINISHED", "KILLED"]
+    assert runs["FINISHED"].data.tags.get("resumed") == "true"
+
+    # An uninterrupted training in another workspace: same number of steps, same weights.
+    other = type(sb)(tmp_path / "uninterrupted", sb.cache, sb.sites)
+    other.workspace.mkdir()
+    res = other(*args, "-q")
+    assert res.returncode == 0, res.stderr[-3000:]
+    straight = last_ckpt(other)
+    plain = json.loads((straight.parent / "summary.json").read_text())
+    assert summary["optimizer_steps"] == plain["optimizer_steps"] > 0
+    a, b = weights(path), weights(straight)
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_ctrl_c_during_training_says_where_it_stopped_and_how_to_resume(shapebench):
+    sb = shapebench
+    proc = sb.popen("train", *IGR, "-O", "epochs=150")
+    wait_for(lambda: saved_epochs(sb) >= 2, what="2 epochs saved")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-3000:]
+    assert "Interrupted: training interrupted during epoch" in err
+    assert "is kept at" in err and "run the same command again to resume" in err
+    assert "Traceback" not in err
+    assert [r.info.status for r in training_runs(sb)] == ["KILLED"]
+
+
+def test_sigkill_of_a_run_leaves_no_training_behind_and_the_rerun_trains_once(shapebench):
+    sb = shapebench
+    args = ["run", *IGR, "-O", "epochs=150", "--split", "novel", "--contexts", "50", "-q"]
+    proc = sb.popen(*args)
+    wait_for(lambda: saved_epochs(sb) >= 2, what="the child training to save 2 epochs")
+    children = processes_mentioning(str(sb.workspace))  # the training names the workspace
+    assert len(children) == 1 and children[0] != proc.pid
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    start = time.monotonic()
+    wait_for(lambda: not processes_mentioning(str(sb.workspace)), timeout=10,
+             what="the orphaned training to stop")  # fmt: skip
+    print(f"orphan gone {time.monotonic() - start:.1f} s after the parent's kill -9")
+
+    res = sb(*args)
+    assert res.returncode == 0, res.stderr[-3000:]
+    finished = training_runs(sb, "FINISHED")
+    assert len(finished) == 1 and finished[0].data.tags.get("resumed") == "true"
+    assert not training_runs(sb, "RUNNING")
+    assert len(sb.cell_runs("synthetic-novel")) == 1
+
+
+def test_two_runs_started_together_log_each_cell_once_and_train_once(shapebench):
+    sb = shapebench  # a fresh workspace: both processes create the MLflow store at once
+    args = ["run", *IGR, "-O", "epochs=20", "--contexts", "50,100", "-q"]
+    procs = [sb.popen(*args) for _ in range(2)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    for proc, (_, err) in zip(procs, outs, strict=True):
+        assert proc.returncode == 0, err[-3000:]
+        assert "Traceback" not in err
+    assert len(training_runs(sb)) == 1
+    keys = []
+    for exp in ("synthetic-trained", "synthetic-novel"):
+        runs = sb.cell_runs(exp, status=None)
+        assert all(r.info.status == "FINISHED" for r in runs)
+        keys += [r.data.tags["shapebench.cell_key"] for r in runs]
+    assert len(keys) == len(set(keys)) == 4  # two splits x two context sizes, each once
