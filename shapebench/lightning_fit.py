@@ -166,6 +166,8 @@ class EpochShuffle(Sampler[int]):
         self.n = n
         self.seed = seed
         self.epoch = 0
+        #: Leading items of the next epoch already trained on (a training resumed mid-epoch).
+        self.skip = 0
 
     def set_epoch(self, epoch: int) -> None:  # Lightning calls it before every epoch too
         self.epoch = int(epoch)
@@ -175,7 +177,18 @@ class EpochShuffle(Sampler[int]):
 
     def __iter__(self) -> Iterator[int]:
         gen = torch.Generator().manual_seed(derived_seed(self.seed, "order", self.epoch))
-        return iter(torch.randperm(self.n, generator=gen).tolist())
+        skip, self.skip = self.skip, 0
+        return iter(torch.randperm(self.n, generator=gen).tolist()[skip:])
+
+
+def steps_into_epoch(trainer: pl.Trainer, batches_per_epoch: int) -> int:
+    """Optimiser steps a restored training had done in the epoch it resumes (0 unless its
+    checkpoint was written mid-epoch, see :class:`StopOnSignal`): one step per batch."""
+    if trainer.world_size != 1:
+        return 0  # mid-epoch checkpoints are written by single-process trainings only
+    epoch = trainer.fit_loop.epoch_progress.current.processed
+    done = trainer.global_step - epoch * batches_per_epoch
+    return done if 0 < done < batches_per_epoch else 0
 
 
 class ShapeDataModule(pl.LightningDataModule):
@@ -242,12 +255,16 @@ class ShapeDataModule(pl.LightningDataModule):
                                self.target_points, self.query_points, self.seed)  # fmt: skip
         self._samples = samples
         self._order = EpochShuffle(len(samples), self.seed)
+        batch = min(self.batch_size, len(samples))
         # Lightning draws the first batch of the first epoch it runs before any epoch hook: seed
-        # that epoch here (a resumed training has restored its epoch count by now).
+        # that epoch here (a resumed training has restored its epoch count by now), and skip
+        # the batches a training stopped mid-epoch had already stepped on.
         trainer = getattr(self, "trainer", None)
         self.start_epoch(trainer.fit_loop.epoch_progress.current.processed if trainer else 0)
-        return DataLoader(samples, batch_size=min(self.batch_size, len(samples)),
-                          sampler=self._order, num_workers=0, drop_last=False)  # fmt: skip
+        if trainer is not None:
+            self._order.skip = batch * steps_into_epoch(trainer, -(-len(samples) // batch))
+        return DataLoader(samples, batch_size=batch, sampler=self._order, num_workers=0,
+                          drop_last=False)  # fmt: skip
 
     def start_epoch(self, epoch: int) -> None:
         """Seed the shuffle order and the data draws of ``epoch`` (see :class:`EpochSeeds`)."""
@@ -262,7 +279,7 @@ LAST = "last.ckpt"
 
 
 class TrainingInterrupted(Interrupted):
-    """Ctrl-C or SIGTERM stopped a training; its last epoch-end checkpoint is kept."""
+    """Ctrl-C or SIGTERM stopped a training; the checkpoint to resume from is kept."""
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
@@ -288,11 +305,10 @@ class EpochCheckpoints(pl.Callback):
     """Saves ``last.ckpt`` at the end of every ``every_epochs``-th epoch, at the end of the first
     epoch after ``minutes`` have passed since the last save, and at the last epoch.
 
-    Only epoch ends are saved: what an epoch computes depends on nothing but the state it starts
-    from (:class:`EpochSeeds`), so resuming from an epoch end gives exactly the weights of an
-    uninterrupted training, where a mid-epoch checkpoint could not. An interruption therefore
-    loses at most the epoch in progress. The checkpoint records its checkpoint key (the name of
-    the training's folder) under ``"shapebench"``.
+    What an epoch computes depends on nothing but the state it starts from (:class:`EpochSeeds`),
+    so resuming from an epoch end gives exactly the weights of an uninterrupted training; a stop
+    asked for by a signal is saved mid-epoch by :class:`StopOnSignal`. The checkpoint records its
+    checkpoint key (the name of the training's folder) under ``"shapebench"``.
     """
 
     def __init__(self, path: Path, key: str, every_epochs: int = 1, minutes: float = 0.0) -> None:
@@ -324,13 +340,83 @@ class EpochCheckpoints(pl.Callback):
         checkpoint[STAMP] = {"key": self.key}
 
 
+class StopRequested(Exception):
+    """Raised at the end of an optimiser step after Ctrl-C or SIGTERM asked training to stop."""
+
+
+class StopOnSignal(pl.Callback):
+    """Ctrl-C or SIGTERM: finish the optimiser step in progress, save ``last.ckpt``, stop.
+
+    Stopping between steps keeps the weights, the optimiser and the step count consistent (a
+    ``KeyboardInterrupt`` raised inside ``optimizer.step`` would not). A single-process training
+    saves where it stopped, and resumes there exactly: the next run skips the batches of the
+    epoch already stepped on (:func:`steps_into_epoch`), and every draw is a function of the
+    epoch and step (:class:`EpochSeeds`). A DDP training keeps its last epoch-end checkpoint. A
+    second Ctrl-C stops at once.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.requested: str | None = None
+        self._previous: dict[int, Any] = {}
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        import signal
+
+        if self.requested is not None:  # asked twice: stop now, without saving
+            raise KeyboardInterrupt
+        self.requested = signal.Signals(signum).name
+        print(f"\n{self.requested}: stopping after the current optimiser step (Ctrl-C again to "
+              "stop at once)", file=sys.stderr)  # fmt: skip
+
+    def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        import signal
+        import threading
+
+        if threading.current_thread() is not threading.main_thread():
+            return  # signal handlers can only be installed from the main thread
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handler)
+
+    def teardown(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
+        import signal
+
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+
+    def on_train_batch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
+                           outputs: Any, batch: Any, batch_idx: int) -> None:  # fmt: skip
+        if batch_idx + 1 >= trainer.num_training_batches:
+            return  # the epoch's last step: stop at its end (on_train_epoch_end), not before
+        if self._asked(trainer):
+            if trainer.world_size == 1:
+                trainer.save_checkpoint(self.path)
+            raise StopRequested(self.requested or "stop requested by another rank")
+
+    def on_train_epoch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        if self._asked(trainer):
+            trainer.save_checkpoint(self.path)  # an epoch end: every rank saves together
+            raise StopRequested(self.requested or "stop requested by another rank")
+
+    def _asked(self, trainer: pl.Trainer) -> bool:
+        stop = self.requested is not None
+        if trainer.world_size > 1:  # a signal reaches one rank; every rank must stop together
+            stop = bool(trainer.strategy.reduce_boolean_decision(stop, all=False))
+        return stop
+
+
 def checkpoint_epochs(path: Path) -> int | None:
-    """How many epochs the checkpoint at ``path`` completed, or None if it cannot be read."""
+    """How many whole epochs the checkpoint at ``path`` holds (a mid-epoch one: those before
+    its epoch), or None if it cannot be read."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception:
         return None
-    return int(state.get("epoch", -1)) + 1
+    try:
+        return int(state["loops"]["fit_loop"]["epoch_progress"]["current"]["processed"])
+    except (KeyError, TypeError):
+        return int(state.get("epoch", -1)) + 1
 
 
 def _resumable_epochs(last: Path, key: str) -> int | None:
@@ -358,6 +444,23 @@ def _resumable_epochs(last: Path, key: str) -> int | None:
     return checkpoint_epochs(last)
 
 
+def _progress(last: Path) -> str | None:
+    """How far the checkpoint at ``last`` got, for messages; None when it cannot be read."""
+    try:
+        step = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"])
+    except Exception:
+        return None
+    return f"{checkpoint_epochs(last)} epochs done, optimiser step {step}"
+
+
+def _kept(last: Path) -> str:
+    """What an interrupted training leaves to resume from, for its message."""
+    if not last.exists():
+        return "nothing was saved yet"
+    progress = _progress(last)
+    return f"its checkpoint ({progress}) is kept at {last}" if progress else f"{last} is unreadable"
+
+
 def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext,
                   max_epochs: int) -> Path:  # fmt: skip
     """One ``Trainer.fit``; resumes from ``<workdir>/last.ckpt``; returns that checkpoint.
@@ -368,11 +471,11 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     (:class:`EpochSeeds`); torch runs its deterministic algorithms where it has them
     (``deterministic="warn"``). Two trainings with the same seed, data and options give
     bitwise-identical weights on one device, and so does a training interrupted and resumed
-    from its last epoch-end checkpoint (:class:`EpochCheckpoints`).
+    from its last checkpoint (:class:`EpochCheckpoints`, :class:`StopOnSignal`).
 
     Ctrl-C and SIGTERM (a parent that died, a scheduler's pre-emption) stop it at the end of the
-    current optimiser step and raise :class:`TrainingInterrupted`, saying which epoch the rerun
-    resumes from.
+    current optimiser step, save where it stopped (:class:`StopOnSignal`) and raise
+    :class:`TrainingInterrupted`, saying where the rerun resumes from.
     """
     import logging
     import warnings
@@ -384,6 +487,8 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     # Lightning's start-up banner (devices, tips) and a torch-internal deprecation are noise here.
     logging.getLogger("pytorch_lightning.utilities.rank_zero").setLevel(logging.WARNING)
     warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
+    # Lightning cannot know that our sampler skips the batches a mid-epoch checkpoint had done.
+    warnings.filterwarnings("ignore", message=r".*resuming from a checkpoint that ended before")
     logger = (MLFlowLogger(tracking_uri=ctx.tracking_uri, run_id=ctx.run_id)
               if ctx.run_id else False)  # fmt: skip
     last = ctx.workdir / LAST
@@ -392,24 +497,22 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     trainer = pl.Trainer(
         accelerator=t.accelerator, devices=t.devices, strategy=t.strategy, num_nodes=t.num_nodes,
         precision=t.precision, max_epochs=t.max_epochs or max_epochs, logger=logger,
-        callbacks=[saver, EpochSeeds(t.seed)], default_root_dir=ctx.workdir,
+        callbacks=[saver, EpochSeeds(t.seed), StopOnSignal(last)], default_root_dir=ctx.workdir,
         enable_checkpointing=False, plugins=[AtomicCheckpointIO()],
         log_every_n_steps=1, enable_model_summary=False, enable_progress_bar=not ctx.quiet,
         deterministic="warn",
     )  # fmt: skip
     resumed = _resumable_epochs(last, ctx.workdir.name)
-    if resumed and not ctx.quiet and trainer.is_global_zero:
-        print(f"resuming from {last} ({resumed} epochs done)", file=sys.stderr)
+    if last.exists() and not ctx.quiet and trainer.is_global_zero:
+        print(f"resuming from {last} ({_progress(last)})", file=sys.stderr)
     start = time.perf_counter()
     try:
         trainer.fit(module, datamodule=data, ckpt_path=str(last) if last.exists() else None)
-    except (SystemExit, KeyboardInterrupt, SIGTERMException) as exc:
-        # Lightning turns Ctrl-C into SystemExit(1) after its own clean-up.
-        epochs = checkpoint_epochs(last) if last.exists() else None
-        kept = (f"its checkpoint after epoch {epochs} is kept at {last}" if epochs
-                else "no epoch had finished, nothing was saved")  # fmt: skip
+    except (StopRequested, SystemExit, KeyboardInterrupt, SIGTERMException) as exc:
+        # Lightning turns a KeyboardInterrupt into SystemExit(1) after its own clean-up.
         raise TrainingInterrupted(
-            f"training interrupted during epoch {trainer.current_epoch + 1}; {kept}",
+            f"training stopped in epoch {trainer.current_epoch + 1} at optimiser step "
+            f"{trainer.global_step}; {_kept(last)}",
             "run the same command again to resume",
         ) from exc
     summary = training_summary(trainer, time.perf_counter() - start)

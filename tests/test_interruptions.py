@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 import torch
 from conftest import TINY
 
@@ -84,7 +85,7 @@ def test_killed_training_resumes_from_its_saved_epoch_to_the_same_weights(shapeb
 
     res = sb(*args)
     assert res.returncode == 0, res.stderr[-3000:]
-    assert f"({killed_at} epochs done)" in res.stderr  # resumed, not restarted from epoch 0
+    assert f"({killed_at} epochs done," in res.stderr  # resumed, not restarted from epoch 0
     path = last_ckpt(sb)
     summary = json.loads((path.parent / "summary.json").read_text())
     assert summary["resumed_from_epoch"] == killed_at
@@ -112,7 +113,8 @@ def test_ctrl_c_during_training_says_where_it_stopped_and_how_to_resume(shapeben
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-3000:]
-    assert "Interrupted: training interrupted during epoch" in err
+    assert "stopping after the current optimiser step" in err
+    assert "Interrupted: training stopped in epoch" in err
     assert "is kept at" in err and "run the same command again to resume" in err
     assert "Traceback" not in err
     assert [r.info.status for r in training_runs(sb)] == ["KILLED"]
@@ -155,3 +157,43 @@ def test_two_runs_started_together_log_each_cell_once_and_train_once(shapebench)
         assert all(r.info.status == "FINISHED" for r in runs)
         keys += [r.data.tags["shapebench.cell_key"] for r in runs]
     assert len(keys) == len(set(keys)) == 4  # two splits x two context sizes, each once
+
+
+@pytest.mark.parametrize("epoch, batch", [(1, 0), (2, 1)], ids=["mid-epoch", "last-batch"])
+def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
+    tmp_path, monkeypatch, epoch, batch
+):
+    """A real SIGINT delivered during a step: the step finishes, the checkpoint is written
+    where training stopped (mid-epoch, or at the end of an epoch's last step), and the resumed
+    training ends bitwise where an uninterrupted one does."""
+    from shapebench_msc.method import MSC
+    from test_training_repro import TINY_MSC, _meshes, _Shapes
+
+    import shapebench.lightning_fit as lf
+    from shapebench.method import TrainerOptions, TrainingContext
+
+    def fit(name: str) -> Path:
+        trainer = TrainerOptions(accelerator="cpu", devices=1, seed=3)
+        ctx = TrainingContext(_Shapes(_meshes()), trainer, tmp_path / name, "", None, True)
+        return MSC(MSC.Options(**{**TINY_MSC, "epochs": 4})).fit(ctx)
+
+    straight = torch.load(fit("straight"), map_location="cpu", weights_only=True)
+    seed_step = lf.EpochSeeds.on_train_batch_start
+    sent = []
+
+    def signal_once(self, trainer, module, data, batch_idx):
+        if (trainer.current_epoch, batch_idx) == (epoch, batch) and not sent:
+            sent.append(trainer.global_step)
+            os.kill(os.getpid(), signal.SIGINT)
+        return seed_step(self, trainer, module, data, batch_idx)
+
+    monkeypatch.setattr(lf.EpochSeeds, "on_train_batch_start", signal_once)
+    with pytest.raises(lf.TrainingInterrupted, match="stopped in epoch"):
+        fit("stopped")
+    monkeypatch.setattr(lf.EpochSeeds, "on_train_batch_start", seed_step)
+    saved = torch.load(tmp_path / "stopped" / "last.ckpt", map_location="cpu", weights_only=True)
+    assert saved["global_step"] == sent[0] + 1  # the step in progress was finished, then saved
+    resumed = torch.load(fit("stopped"), map_location="cpu", weights_only=True)
+    assert resumed["global_step"] == straight["global_step"]
+    a, b = straight["state_dict"], resumed["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
