@@ -43,14 +43,35 @@ Register = Callable[[str, object], None]
 
 @hookspec
 def shapebench_register_methods(register: Register) -> None:
-    """Register completion methods: subclasses of :class:`shapebench.method.Method`."""
+    """Register completion methods: subclasses of :class:`shapebench.method.Method`.
+
+    Args:
+        register: call ``register(name, target)`` once per method; ``name`` is what
+            ``--method`` takes, ``target`` the class or a ``"module:Class"`` path.
+    """
 
 
 @hookspec
 def shapebench_register_datasets(register: Register) -> None:
-    """Register datasets: subclasses of :class:`shapebench.dataset.Dataset`."""
+    """Register datasets: subclasses of :class:`shapebench.dataset.Dataset`.
+
+    Args:
+        register: call ``register(name, target)`` once per dataset; ``name`` is what
+            ``--dataset`` takes, ``target`` the class or a ``"module:Class"`` path.
+    """
 
 
 @hookspec
 def shapebench_register_metrics(register: Register) -> None:
-    """Register metrics: subclasses of :class:`shapebench.metric.Metric`."""
+    """Register metrics: subclasses of :class:`shapebench.metric.Metric`.
+
+    Every installed metric is computed by every run. The class is checked when it is first
+    used: a class that cannot be imported or built, or whose ``card()`` raises or returns an
+    invalid :class:`~shapebench.metric.MetricCard`, disables that metric with a warning naming
+    the plugin, and the other metrics still run.
+
+    Args:
+        register: call ``register(name, target)`` once per metric; ``name`` is what
+            ``--metric`` takes (use the class's ``name``: runs log values under it),
+            ``target`` the class or a ``"module:Class"`` path.
+    """

@@ -228,6 +228,9 @@ def build_board(
         raise ShapebenchError(
             f"no run of {dataset}-{split} recorded metric {metric!r}", "pick another with --metric"
         )
+    # Cards are compared in their current tag form: a tag written by an older shapebench (the
+    # same card in the old spelling) groups with today's.
+    runs[card_col] = runs[card_col].map(_normalised_card)
     cards = runs.groupby(card_col)["_label"].agg(lambda s: sorted(set(s)))
     if len(cards) > 1:
         listing = "; ".join(f"[{_card_text(c)}] used by {', '.join(m)}" for c, m in cards.items())
@@ -237,7 +240,7 @@ def build_board(
             "rerun the odd ones with the same dataset options (shapebench run ... --force)",
         )
     card = cards.index[0]
-    higher = _higher_is_better(metric)
+    higher = _higher_is_better(metric, card)
     per_obj = _per_object(tracker, runs, metric)
     scored = board_stats.with_failure_rule(per_obj, higher)
     raw = board_stats.raw_table(scored)
@@ -276,9 +279,25 @@ def _scale(card: str) -> float:
         return 1.0
 
 
-def _higher_is_better(metric: str) -> bool:
+def _normalised_card(tag: object) -> object:
+    if not isinstance(tag, str) or "=" not in tag:
+        return tag
+    try:
+        return MetricCard.from_tag(tag).as_tag()
+    except ValueError:
+        return tag
+
+
+def _higher_is_better(metric: str, card: str = "") -> bool:
+    """The ranking direction: the card's when it states it (so a table of an uninstalled
+    metric plugin still ranks right), else the installed metric's."""
     from shapebench.registry import get_registry
 
+    if "higher_is_better=" in card:
+        try:
+            return MetricCard.from_tag(card).higher_is_better
+        except ValueError:
+            pass
     try:
         return bool(get_registry().load("metric", metric).higher_is_better)
     except ShapebenchError:
@@ -375,7 +394,7 @@ def render_markdown(board: Board, command: str, uri: str) -> str:
         cells = [_cell(board, row, c) for c in ctxs] + [_norm_cell(board, row, c) for c in ctxs]
         name = f"{row.display} (`{row.label}`)"
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {n} | {fails} |")
-    direction = "highest" if _higher_is_better(board.metric) else "lowest"
+    direction = "highest" if _higher_is_better(board.metric, board.card) else "lowest"
     lines += [
         "",
         f"**Bold**: the {direction} mean at that context size; ≈: not significantly different "

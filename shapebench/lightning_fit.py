@@ -329,7 +329,7 @@ class EpochCheckpoints(pl.Callback):
         )
         # Every rank must take the same decision: saving is a collective call under DDP.
         if trainer.strategy.broadcast(bool(due), src=0):
-            trainer.save_checkpoint(self.path)
+            trainer.save_checkpoint(self.path, weights_only=False)
             self._last = time.monotonic()
             self.saved_epochs = done
 
@@ -391,12 +391,13 @@ class StopOnSignal(pl.Callback):
             return  # the epoch's last step: stop at its end (on_train_epoch_end), not before
         if self._asked(trainer):
             if trainer.world_size == 1:
-                trainer.save_checkpoint(self.path)
+                trainer.save_checkpoint(self.path, weights_only=False)
             raise StopRequested(self.requested or "stop requested by another rank")
 
     def on_train_epoch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         if self._asked(trainer):
-            trainer.save_checkpoint(self.path)  # an epoch end: every rank saves together
+            # An epoch end: every rank saves together.
+            trainer.save_checkpoint(self.path, weights_only=False)
             raise StopRequested(self.requested or "stop requested by another rank")
 
     def _asked(self, trainer: pl.Trainer) -> bool:
@@ -507,7 +508,9 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
         print(f"resuming from {last} ({_progress(last)})", file=sys.stderr)
     start = time.perf_counter()
     try:
-        trainer.fit(module, datamodule=data, ckpt_path=str(last) if last.exists() else None)
+        # weights_only: resuming reads tensors and plain values only, never pickled objects.
+        trainer.fit(module, datamodule=data, ckpt_path=str(last) if last.exists() else None,
+                    weights_only=True)  # fmt: skip
     except (StopRequested, SystemExit, KeyboardInterrupt, SIGTERMException) as exc:
         # Lightning turns a KeyboardInterrupt into SystemExit(1) after its own clean-up.
         raise TrainingInterrupted(

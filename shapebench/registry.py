@@ -4,6 +4,13 @@ pluggy's ``load_setuptools_entrypoints`` stops at the first plugin that fails to
 entry point is loaded on its own: a plugin that raises on import (or inside a hook) becomes a
 warning naming it, and every other plugin still loads. ``shapebench plugins`` shows the failures.
 
+Metric classes are checked when they are loaded (their card must pass
+:meth:`~shapebench.metric.MetricCard.validate`, see :func:`shapebench.metric.check_metric`). Since a
+run computes every installed metric, asking for the metric names loads and checks them all: a
+metric whose class cannot be imported, cannot be built or states a bad card is left out with a
+warning naming its plugin, and the other metrics still run. Asking for that metric by name is an
+error saying why.
+
 Set ``SHAPEBENCH_DISABLE_PLUGINS=name1,name2`` (entry-point or distribution names) to skip plugins.
 """
 
@@ -55,23 +62,50 @@ class Registration:
     name: str
     target: Any
     plugin: PluginInfo
+    #: Why this name cannot be used (its class failed to load or its metric card is bad).
+    error: ShapebenchError | None = None
+    reason: str = ""
 
     def load(self) -> type:
+        """The registered class, imported on first use (and, for a metric, checked)."""
+        if self.error is not None:
+            raise self.error
         target = self.target
         if isinstance(target, str):
             module_name, _, attr = target.partition(":")
             try:
                 target = getattr(importlib.import_module(module_name), attr)
             except Exception as exc:  # a broken plugin must not take the CLI down
-                raise ShapebenchError(
-                    f"{self.kind} {self.name!r} from plugin {self.plugin.name!r} "
-                    f"({self.plugin.distribution} {self.plugin.version}) failed to load "
-                    f"{self.target!r}: {type(exc).__name__}: {exc}",
-                    f"reinstall or upgrade {self.plugin.distribution}, or disable it with "
-                    f"SHAPEBENCH_DISABLE_PLUGINS={self.plugin.name}",
-                ) from exc
-            self.target = target
+                self.error = self._failure(
+                    f"failed to load {self.target!r}: {type(exc).__name__}: {exc}",
+                    f"reinstall or upgrade {self.plugin.distribution}",
+                )
+                raise self.error from exc
+        if self.kind == "metric":
+            self._check_metric(target)
+        self.target = target
         return target
+
+    def _check_metric(self, cls: object) -> None:
+        from shapebench.metric import check_metric  # imports numpy: not at start-up
+
+        try:
+            check_metric(cls)
+        except ValueError as exc:
+            self.error = self._failure(
+                f"is disabled: {exc}",
+                f"fix the metric's card() in {self.plugin.distribution} (docs/api.md lists the "
+                "allowed values)",
+            )
+            raise self.error from exc
+
+    def _failure(self, what: str, fix: str) -> ShapebenchError:
+        self.reason = what
+        return ShapebenchError(
+            f"{self.kind} {self.name!r} from plugin {self.plugin.name!r} "
+            f"({self.plugin.distribution} {self.plugin.version}) {what}",
+            f"{fix}, or disable it with SHAPEBENCH_DISABLE_PLUGINS={self.plugin.name}",
+        )
 
 
 class Registry:
@@ -90,6 +124,10 @@ class Registry:
 
     # -- querying ------------------------------------------------------------------------------
     def names(self, kind: str) -> list[str]:
+        """The usable names of ``kind``. For metrics this loads and checks every class (a run
+        computes them all): one that fails is left out with a :class:`PluginWarning`."""
+        if kind == "metric":
+            return sorted(name for name, regs in self._entries[kind].items() if _usable(regs))
         return sorted(self._entries[kind])
 
     def conflicts(self) -> list[tuple[str, str, list[Registration]]]:
@@ -114,6 +152,28 @@ class Registry:
 
     def load(self, kind: str, name: str) -> type:
         return self.get(kind, name).load()
+
+
+def _usable(regs: list[Registration]) -> bool:
+    """Whether a name loads; a name two plugins offer stays listed, for ``get`` to report."""
+    if len(regs) > 1:
+        return True
+    reg = regs[0]
+    if reg.error is not None:
+        return False
+    try:
+        reg.load()
+    except ShapebenchError as exc:
+        note = f"{reg.kind} {reg.name!r} {reg.reason or exc.message}"
+        reg.plugin.error = f"{reg.plugin.error}; {note}" if reg.plugin.error else note
+        warnings.warn(
+            f"shapebench plugin {reg.plugin.name!r} ({reg.plugin.distribution} "
+            f"{reg.plugin.version}): {note}; the other {reg.kind}s are still available",
+            PluginWarning,
+            stacklevel=3,
+        )
+        return False
+    return True
 
 
 def _disabled() -> set[str]:

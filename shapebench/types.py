@@ -45,7 +45,9 @@ class Category:
 class ObjectRef:
     """One object of a dataset; ``id`` is unique within the dataset."""
 
+    #: Unique within the dataset; may contain ``/`` (cache file names replace it).
     id: str
+    #: The category's name (see :class:`Category`).
     category: str
 
 
@@ -58,10 +60,15 @@ class ObjectData:
     against. Datasets may add more arrays (SDF samples, occupancy, ...) under ``extra``.
     """
 
+    #: Which object this is.
     ref: ObjectRef
+    #: ``(n, 3)`` points visible from the viewpoints: the pool contexts are drawn from.
     surface_points: np.ndarray
+    #: ``(n, 3)`` unit normals of ``surface_points``.
     surface_normals: np.ndarray
+    #: ``(m, 3)`` ground-truth points over the whole surface: what metrics compare against.
     gt_points: np.ndarray
+    #: Training arrays by name (``"sdf"``, ``"occupancy"``, ``"complete_points"``), when asked for.
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     #: Scratch space for metrics (the ground truth's KD-tree is built once per object).
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
@@ -78,9 +85,13 @@ class Context:
     should seed from it so that runs repeat exactly.
     """
 
+    #: The object the context was drawn from.
     ref: ObjectRef
+    #: ``(k, 3)`` float32 context points.
     points: np.ndarray
+    #: ``(k, 3)`` normals of ``points``, or None (the default protocol).
     normals: np.ndarray | None
+    #: Seed for any randomness of the method (runs repeat exactly).
     seed: int
 
     @property
@@ -98,10 +109,15 @@ class Completion:
     ``info`` holds scalars worth logging (timings, iterations, ...).
     """
 
+    #: ``(n, 3)`` points of the completed shape; the metrics score these.
     points: np.ndarray
+    #: The mesh the method extracted (a ``trimesh.Trimesh``), if any.
     mesh: Any | None = None
+    #: The implicit function: signed distances of an ``(n, 3)`` array of points.
     sdf: Callable[[np.ndarray], np.ndarray] | None = None
+    #: Several completions drawn from a posterior, as ``(n, 3)`` point clouds.
     samples: list[np.ndarray] | None = None
+    #: Scalars worth logging (timings, iterations, ...).
     info: dict[str, float] = field(default_factory=dict)
     #: Scratch space shared by metrics scoring this completion (nearest-neighbour distances).
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)

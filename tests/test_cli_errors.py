@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import time
 
+import pytest
 from conftest import TINY, free_port
+
+pytestmark = pytest.mark.slow  # every test runs the CLI in a subprocess
 
 
 def _clean_error(res, *needles: str) -> None:

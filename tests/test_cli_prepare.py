@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import pytest
 import trimesh
+
+pytestmark = pytest.mark.slow  # runs the CLI in a subprocess
 
 
 def test_prepare_reports_ready_and_failed_objects(shapebench, tmp_path):

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 from conftest import TINY, TINY_CONTEXTS
+
+pytestmark = pytest.mark.slow  # every test runs the CLI in a subprocess
 
 
 def _tags_by_cell(runs):

@@ -215,6 +215,7 @@ def test_a_checkpoint_of_another_model_is_one_line(tmp_path, checkpoint):
     _one_line(err.value, str(checkpoint), "does not fit IGRModule")
 
 
+@pytest.mark.slow
 def test_run_with_a_pickle_payload_checkpoint_is_one_clean_error(shapebench, tmp_path, checkpoint):
     """The whole ``--checkpoint PATH`` path, as a user runs it: exit status 2, no traceback."""
     evil = tmp_path / "evil.ckpt"

@@ -271,6 +271,7 @@ def test_real_frames_with_invalid_depth_codes_keep_the_scene(tmp_path):
 
 
 @pytest.mark.skipif(not REAL.exists(), reason="the real ICL-NUIM sample is not here")
+@pytest.mark.slow
 def test_run_says_why_a_scene_failed_and_that_the_card_promises_too_many_points(
     shapebench, tmp_path
 ):

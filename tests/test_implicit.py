@@ -67,6 +67,7 @@ def test_msc_posterior_variance_shrinks_as_points_are_added_and_ignores_order():
     assert torch.allclose(m3, m4, atol=1e-5) and torch.allclose(v3, v4)
 
 
+@pytest.mark.slow  # optimises latents: about 6 s each
 @pytest.mark.parametrize("scale", [False, True])
 def test_latent_optimisation_lowers_the_context_loss(scale):
     from shapebench_igr.module import IGRModule

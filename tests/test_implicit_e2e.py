@@ -5,7 +5,10 @@ from __future__ import annotations
 import json
 
 import pandas as pd
+import pytest
 from conftest import TINY
+
+pytestmark = pytest.mark.slow  # every test trains through the CLI in subprocesses
 
 #: Tiny networks and one epoch: these tests check the machinery, not the quality.
 SMALL_NET = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=1",

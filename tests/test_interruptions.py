@@ -19,6 +19,8 @@ from conftest import TINY
 
 from shapebench.lightning_fit import checkpoint_epochs
 
+pytestmark = pytest.mark.slow  # every test here starts the CLI or trains
+
 #: A tiny IGR trained long enough (about 0.1 s per epoch) to be interrupted mid-way.
 IGR = ["-m", "igr", "-d", "synthetic", *TINY, "-O", "latent_dim=8", "-O", "width=32",
        "-O", "depth=2", "-O", "batch_shapes=4", "-O", "surface_points=64",

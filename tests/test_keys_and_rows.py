@@ -35,6 +35,7 @@ def _download(sb, run_id: str, name: str = "per_object.csv") -> pd.DataFrame:
 # ---------------------------------------------------------------------------------------- keys
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_max_epochs_is_part_of_the_checkpoint_key_and_the_row(with_example):
     sb = with_example
     short = sb("run", "-m", "example-template", *RUN, "--contexts", "50", "--split", "novel",
@@ -132,6 +133,7 @@ def test_code_digest_does_not_depend_on_where_the_code_lives(tmp_path, monkeypat
     assert first == second
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_an_edited_plugin_does_not_reuse_its_stale_cells(shapebench, tmp_path):
     site = pip_install_to(tmp_path / "site", PLUGINS / "shapebench-example")
     shapebench.sites = (site,)
@@ -164,6 +166,7 @@ def test_variant_key_and_label():
     assert auto_label("igr", {"width": 64, "lr": 1e-3}) == "igr[lr=0.001,width=64]"
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_a_sigma_variant_gets_its_own_row(shapebench):
     sb = shapebench
     assert (
@@ -186,6 +189,7 @@ def test_a_sigma_variant_gets_its_own_row(shapebench):
     assert not np.isclose(plain, wide["mean"].item())
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_a_label_names_the_row(shapebench):
     res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel",
                      "--label", "gauss-baseline")  # fmt: skip
@@ -197,6 +201,7 @@ def test_a_label_names_the_row(shapebench):
     assert set(_csv(shapebench, "synthetic-novel.csv")["label"]) == {"gauss-baseline"}
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_context_normals_are_a_protocol_option_not_a_paper_row(shapebench):
     sb = shapebench
     args = ("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
@@ -251,6 +256,7 @@ def test_split_options_keep_the_preprocessing_cache(tmp_path):
     assert MeshFolderOptions.__dataclass_fields__["train_fraction"].metadata["selection"]
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_an_explicitly_requested_empty_split_is_an_error(shapebench):
     res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "-D", "test_per_category=0",
                      "--split", "novel", "--contexts", "50")  # fmt: skip
@@ -259,12 +265,14 @@ def test_an_explicitly_requested_empty_split_is_an_error(shapebench):
     assert "Traceback" not in res.stderr
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_run_prints_what_is_evaluated(shapebench):
     res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
     assert "synthetic/novel: 4 objects in 4 categories" in res.stdout
     assert "test_per_category" in res.stdout
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_the_leaderboard_picks_a_data_version(shapebench):
     sb = shapebench
     base = ("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
@@ -288,6 +296,7 @@ def test_the_leaderboard_picks_a_data_version(shapebench):
 # ------------------------------------------------------------------------------------ failures
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_a_cell_where_every_object_fails_exits_non_zero_with_reasons(shapebench):
     res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel",
                      "-O", "sigma=.nan")  # fmt: skip
@@ -307,6 +316,7 @@ def _holm(p: list[float]) -> list[float]:
     return out
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_failure_rule_and_tied_marks_recomputed_from_the_per_object_tables(with_example):
     sb = with_example
     for extra in ((), ("-O", "sigma=0.05"), ("-O", "sigma=0.011")):
@@ -389,6 +399,7 @@ def test_the_paper_column_stands_only_beside_the_unit_diameter_card():
     assert "paper" in set(tidy_csv(board("unit-diameter"))["source"])
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_the_unit_diameter_frame_divides_squared_chamfer_by_four(shapebench):
     sb = shapebench
     args = ("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel")
@@ -402,6 +413,7 @@ def test_the_unit_diameter_frame_divides_squared_chamfer_by_four(shapebench):
     assert "frame=unit-diameter" in runs["unit-diameter"].data.tags["card.chamfer-l2"]
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_sweep_files_take_the_protocol_and_labels(shapebench, tmp_path):
     sweep = tmp_path / "s.yaml"
     sweep.write_text(
@@ -421,6 +433,7 @@ def test_sweep_files_take_the_protocol_and_labels(shapebench, tmp_path):
     assert run.data.tags["protocol.frame"] == "unit-diameter"
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_training_child_imports_the_same_shapebench_as_its_parent(with_example):
     """A folder named shapebench in the working directory (a second checkout) must not be what
     the training process imports: the console script's process does not import it, and the

@@ -7,7 +7,10 @@ import importlib.util
 import math
 import sys
 
+import pytest
 from conftest import ROOT
+
+pytestmark = pytest.mark.slow  # trains IGR for 150 steps
 
 
 def _ladder():

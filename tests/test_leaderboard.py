@@ -21,6 +21,7 @@ def _per_object(sb, method: str, k: int) -> pd.DataFrame:
     return pd.read_csv(sb.client().download_artifacts(run.info.run_id, "per_object.csv", str(dst)))
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_leaderboard_raw_and_normalised_from_mlflow(with_example):
     sb = with_example
     for method in ("gauss", "example-sphere"):
@@ -51,6 +52,7 @@ def test_leaderboard_raw_and_normalised_from_mlflow(with_example):
         assert np.isclose(ref["mean"].item(), 1.0) and np.isclose(ref["std"].item(), 0.0)
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_leaderboard_without_reference_runs_says_so(shapebench):
     assert shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50", "-q",
                       "--split", "novel").returncode == 0  # fmt: skip
@@ -61,6 +63,7 @@ def test_leaderboard_without_reference_runs_says_so(shapebench):
     assert "raw 50" in md
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_leaderboard_without_runs_is_a_clear_error(shapebench):
     res = shapebench("leaderboard", "--dataset", "synthetic")
     assert res.returncode == 2 and "no finished runs of dataset 'synthetic'" in res.stderr
@@ -75,6 +78,7 @@ def _log_cell(client, exp_id: str, method: str, card: str) -> None:
     client.set_terminated(run.info.run_id)
 
 
+@pytest.mark.slow  # builds an MLflow store: about 6 s
 def test_leaderboard_refuses_to_mix_metric_cards(tmp_path):
     settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path, "quick", tmp_path)
     tracker = Tracker(settings)

@@ -329,7 +329,7 @@ def test_fscore_zero_when_nothing_within_tau() -> None:
 def test_fscore_threshold_is_tau() -> None:
     """tau = 0.01, the PoinTr/GRNet default the card advertises: 0.009 matches, 0.011 does not."""
     gt = grid(3)
-    assert FScore.tau == 0.01 and "tau=0.01" in FScore().card(30000).as_tag()
+    assert FScore.tau == 0.01 and "threshold=0.01" in FScore().card(30000).as_tag()
     assert score(FScore(), gt + np.array([0.009, 0, 0]), gt) == 1.0
     assert score(FScore(), gt + np.array([0.011, 0, 0]), gt) == 0.0
 

@@ -12,7 +12,7 @@ import urllib.request
 import pytest
 from conftest import TINY, free_port
 
-pytestmark = pytest.mark.server
+pytestmark = [pytest.mark.server, pytest.mark.slow]  # starts servers and CLI subprocesses
 
 
 def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 90) -> None:

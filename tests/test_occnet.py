@@ -47,6 +47,7 @@ def test_occupancy_of_a_sphere_a_box_and_a_mesh_with_a_hole():
     assert _labels_match(holed, in_sphere, 0.02) > 0.999
 
 
+@pytest.mark.slow  # trains: 15-20 s per decoder
 @pytest.mark.parametrize("decoder", ["batchnorm", "cbatchnorm"])
 def test_a_few_training_steps_lower_the_bce(decoder):
     torch.manual_seed(0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
 from shapebench_pcn.module import PCNModule
@@ -41,6 +42,7 @@ def _sphere(n: int, seed: int) -> torch.Tensor:
     return 0.7 * v / v.norm(dim=1, keepdim=True)
 
 
+@pytest.mark.slow  # trains PCN: about a minute
 def test_training_lowers_the_loss_and_completion_beats_the_raw_context():
     torch.manual_seed(1)
     module = PCNModule(feature=64, num_coarse=64, grid_size=2, grid_scale=0.05, lr=1e-3,

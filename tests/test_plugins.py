@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import warnings
@@ -14,6 +15,7 @@ from shapebench.errors import PluginConflictError, UnknownNameError
 from shapebench.registry import PluginWarning, discover
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_builtins_register_through_entry_points(shapebench):
     res = shapebench("plugins")
     assert res.returncode == 0, res.stderr
@@ -24,6 +26,7 @@ def test_builtins_register_through_entry_points(shapebench):
         assert provides in res.stdout
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_third_party_plugin_is_listed_described_and_runs(with_example):
     res = with_example("plugins")
     assert res.returncode == 0, res.stderr
@@ -45,6 +48,7 @@ def test_third_party_plugin_is_listed_described_and_runs(with_example):
     assert run.data.tags["plugin.version"] == "0.3.1"
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_plugin_that_raises_on_import_is_a_warning(with_example, broken_site):
     with_example.sites = (*with_example.sites, broken_site)
     res = with_example("plugins")
@@ -58,6 +62,7 @@ def test_plugin_that_raises_on_import_is_a_warning(with_example, broken_site):
     assert with_example("methods").returncode == 0
 
 
+@pytest.mark.slow  # runs the CLI in subprocesses
 def test_two_distributions_with_one_name_is_an_error_naming_both(shapebench, dupe_site):
     shapebench.sites = (dupe_site,)
     res = shapebench("run", "-m", "gauss", "-d", "synthetic")
@@ -68,17 +73,63 @@ def test_two_distributions_with_one_name_is_an_error_naming_both(shapebench, dup
     assert "conflict: method 'gauss'" in listing.stdout
 
 
+#: What start-up must not pay for: torch and Lightning take seconds to import, MLflow about one.
+HEAVY = ("torch", "pytorch_lightning", "lightning", "mlflow")
+
+
+def _run_fresh(code: str) -> object:
+    """Run ``code`` in a fresh interpreter (a clean sys.modules: this test process has long
+    imported torch) and return the JSON value it prints last."""
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
 def test_cli_startup_imports_neither_torch_nor_mlflow():
     code = (
-        "import sys\n"
+        "import json, sys\n"
         "from shapebench.cli import cli\n"
         "from shapebench.registry import get_registry\n"
         "reg = get_registry(); assert reg.names('method')\n"
-        "heavy = ('torch', 'mlflow', 'trimesh', 'pytorch_lightning')\n"
-        "heavy = [m for m in heavy if m in sys.modules]\n"
-        "assert not heavy, heavy\n"
+        f"print(json.dumps([m for m in {(*HEAVY, 'trimesh')!r} if m in sys.modules]))\n"
     )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    assert _run_fresh(code) == []
+
+
+def test_loading_every_registered_class_imports_no_torch():
+    """The lazy-torch rule (see shapebench.method) for every method, dataset and metric that the
+    entry points register, built-ins included: importing the class's module must not import
+    torch, since ``shapebench methods`` loads every method class to describe it."""
+    code = (
+        "import json, sys\n"
+        "from shapebench.registry import KINDS, get_registry\n"
+        "reg = get_registry()\n"
+        "loaded, heavy = [], {}\n"
+        "for kind in KINDS:\n"
+        "    for name in reg.names(kind):\n"
+        "        reg.get(kind, name).load()\n"
+        "        loaded.append(f'{kind} {name}')\n"
+        f"        new = [m for m in {HEAVY!r} if m in sys.modules and m not in heavy]\n"
+        "        heavy.update({m: f'{kind} {name}' for m in new})\n"
+        "print(json.dumps({'loaded': loaded, 'heavy': heavy}))\n"
+    )
+    out = _run_fresh(code)
+    for expected in ("method igr", "method pcn", "method gauss", "dataset synthetic",
+                     "metric chamfer-l2"):  # fmt: skip
+        assert expected in out["loaded"]  # the check below is not vacuous
+    assert out["heavy"] == {}, f"module imported by the first class that pulled it: {out['heavy']}"
+
+
+def test_methods_command_imports_no_torch():
+    """``shapebench methods`` run to its end, as the console script runs it."""
+    code = (
+        "import atexit, json, sys\n"
+        f"atexit.register(lambda: print(json.dumps([m for m in {HEAVY!r} if m in sys.modules])))\n"
+        "sys.argv = ['shapebench', 'methods']\n"
+        "from shapebench.cli import main\n"
+        "main()\n"
+    )
+    assert _run_fresh(code) == []
 
 
 # -- in-process checks of the loader ------------------------------------------------------------

@@ -46,6 +46,7 @@ def arrays(ds: MeshFolderDataset, ref) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+@pytest.mark.slow  # starts worker processes: 3-10 s
 def test_two_jobs_give_the_same_arrays_as_one_and_failures_are_reported(tmp_path):
     root = make_meshes(tmp_path / "data")
     parallel = MeshFolderDataset(TINY, tmp_path / "cache-2", root)
@@ -98,6 +99,7 @@ class CrashingDataset(MeshFolderDataset):
         return super().mesh(ref)
 
 
+@pytest.mark.slow  # starts worker processes: 3-10 s
 def test_a_dying_worker_fails_only_its_object(tmp_path):
     ds = CrashingDataset(TINY, tmp_path / "cache", make_meshes(tmp_path / "data"))
     report = prepare(ds, [NOVEL], frozenset(), jobs=2, quiet=True)
@@ -133,6 +135,7 @@ def test_every_builtin_dataset_pickles(tmp_path):
         assert type(clone) is type(ds) and clone.options == ds.options
 
 
+@pytest.mark.slow  # starts worker processes: 3-10 s
 def test_workers_that_cannot_start_stop_prepare_at_once(tmp_path, monkeypatch):
     """A dataset class that only exists in this process cannot be rebuilt by a worker."""
     module = types.ModuleType("shapebench_test_only_here")

@@ -19,9 +19,10 @@ from shapebench.types import NOVEL, Category, ObjectRef
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 REAL = ["common-3d-test-models/data/spot.obj", "common-3d-test-models/data/suzanne.obj"]
 
-pytestmark = pytest.mark.skipif(
-    not SHARED.exists(), reason="../shared/data (real test meshes) is not present"
-)
+pytestmark = [
+    pytest.mark.skipif(not SHARED.exists(), reason="../shared/data (real meshes) is not present"),
+    pytest.mark.slow,  # scores real meshes through the Runner and MLflow: about 6 s
+]
 
 
 class FilesDataset(MeshDataset):

@@ -6,7 +6,10 @@ import os
 import signal
 import time
 
+import pytest
 from conftest import TINY
+
+pytestmark = pytest.mark.slow  # runs and kills CLI subprocesses
 
 SWEEP = """
 name: resume-test

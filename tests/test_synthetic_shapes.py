@@ -78,6 +78,7 @@ def test_category_name_is_mixed_into_the_seed(monkeypatch: pytest.MonkeyPatch) -
     assert draws["chair"] != draws["bench"]
 
 
+@pytest.mark.slow  # Python subprocesses
 def test_determinism_does_not_depend_on_python_hash_seed() -> None:
     code = (
         "import hashlib\n"

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 import trimesh
 from shapebench_msc.method import MSC
@@ -13,6 +14,8 @@ from shapebench_msc.method import MSC
 from shapebench.dataset import Dataset
 from shapebench.method import TrainerOptions, TrainingContext
 from shapebench.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
+
+pytestmark = pytest.mark.slow  # every test trains with Lightning
 
 #: A tiny MSC: its training step draws context and target subsets, the reparameterised code and
 #: Eikonal samples, and its data module draws surface points and the shuffle order.

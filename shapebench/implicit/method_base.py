@@ -5,12 +5,13 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from pathlib import Path
-from typing import Any, ClassVar
-
-import torch
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from shapebench.method import Method, TrainingContext
 from shapebench.types import Completion, Context, Supervision
+
+if TYPE_CHECKING:  # annotations only: the method classes are imported by `shapebench methods`,
+    import torch  # which must not pay for torch (the lazy-torch rule of shapebench.method)
 
 
 class LightningMethod(Method):
@@ -99,6 +100,8 @@ class ImplicitMethod(LightningMethod):
         # torch's global generator: seed it from this batch's contexts, so that an object's
         # completion does not depend on which cells ran earlier in the process (a resumed or
         # partial run then gives exactly what a full run gives).
+        import torch
+
         from shapebench.hashing import stable_seed
 
         torch.manual_seed(stable_seed("complete", *(c.seed for c in contexts)) % (2**63))

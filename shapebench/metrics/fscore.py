@@ -23,13 +23,16 @@ class FScore(Metric):
     def card(self, eval_points: int) -> MetricCard:
         return MetricCard(
             metric=self.name,
-            power=0,
-            reduction=f"fraction within tau={self.tau:g}",  # type: ignore[arg-type]
+            power=1,
+            reduction="fraction",
+            threshold=self.tau,
             direction="symmetric",
+            combine="harmonic-mean",
             halved=False,
             scale=1.0,
             frame=UNIT_SPHERE_FRAME,
             eval_points=eval_points,
+            higher_is_better=True,
         )
 
     def compute(self, prediction: Completion, ground_truth: ObjectData, context: Context) -> float:
