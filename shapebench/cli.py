@@ -174,8 +174,15 @@ def _trainer(settings, seed: int, **given) -> Any:
     return trainer_options(settings, seed, **given)
 
 
+def _debug(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    if value:  # read where errors are reported: Group.invoke, the run summaries
+        os.environ["SHAPEBENCH_DEBUG"] = "1"
+
+
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="shapebench")
+@click.option("--debug", is_flag=True, expose_value=False, is_eager=True, callback=_debug,
+              help="Show full tracebacks: of errors, and of each distinct per-object failure.")
 def cli() -> None:
     """Benchmark few-shot 3D shape completion.
 

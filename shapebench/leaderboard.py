@@ -223,6 +223,22 @@ def build_board(
         return None
     if metric is None:
         metric = _default_metric(runs)
+    crashed_tag = "shapebench.metric_errors"
+    if crashed_tag in runs:
+        crashed = runs[crashed_tag].fillna("").map(lambda t: metric in t.split(","))
+        if crashed.any():
+            left_out.append(
+                f"{int(crashed.sum())} runs in which {metric} raised on some object (fix the "
+                "metric and rerun: those cells are computed again)"
+            )
+            runs = runs[~crashed]
+            if runs.empty or f"card.{metric}" not in runs or runs[f"card.{metric}"].isna().all():
+                raise ShapebenchError(
+                    f"{metric} raised on some object in every run of {dataset}-{split} that "
+                    "computed it",
+                    "see the reasons under the run's summary (shapebench --debug run ... shows "
+                    "tracebacks); fix the metric and rerun: those cells are computed again",
+                )
     card_col = f"card.{metric}"
     if card_col not in runs or runs[card_col].isna().all():
         raise ShapebenchError(

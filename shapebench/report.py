@@ -19,6 +19,10 @@ def _pm(mean: float | None, std: float | None, scale: float) -> str:
 
 
 def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
+    import os
+
+    # --debug (or SHAPEBENCH_DEBUG=1): each distinct error's traceback under its reason.
+    debug = bool(os.environ.get("SHAPEBENCH_DEBUG"))
     """Raw Chamfer x1000 (mean ± std over objects) per split and context size, and failures."""
     metric = outcome.primary_metric
     by_split = defaultdict(list)
@@ -48,14 +52,23 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
             if not c.reasons:
                 continue
             everything = c.n_ok == 0
+            failed = c.n_objects - c.n_ok
             click.secho(
                 f"  k={c.context_size} seed={c.seed}: "
-                + ("EVERY object failed" if everything else f"{c.n_objects - c.n_ok} failed")
+                + (
+                    "EVERY object failed"
+                    if everything
+                    else f"{failed} failed"
+                    if failed
+                    else "a metric raised"
+                )  # fmt: skip
                 + "; most common reasons:",
                 fg="red" if everything else "yellow",
             )
             for reason, count in c.reasons:
                 click.echo(f"    {count} x {reason}")
+                if debug and c.tracebacks.get(reason):
+                    click.echo("      " + c.tracebacks[reason].replace("\n", "\n      "))
             click.echo(f"    per-object table: {c.table_uri}")
         click.echo(f"  MLflow experiment {outcome.dataset.name}-{split} (id {exp_id})")
     click.echo("")

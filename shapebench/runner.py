@@ -37,6 +37,17 @@ from shapebench.variant import Variant
 
 EXAMPLE_PLYS = 3  # completed point clouds logged per cell, for a look in the MLflow UI
 TOP_REASONS = 3  # distinct failure reasons printed per cell
+#: Per-object column prefix holding the error of a metric that raised on that object.
+METRIC_ERROR = "metric_error."
+#: Tag of a cell run listing the metrics that raised on some object (comma-separated): such a
+#: cell is not finished for those metrics, and is computed again by the next run that asks.
+METRIC_ERRORS_TAG = "shapebench.metric_errors"
+
+
+def _traceback(exc: BaseException) -> str:
+    import traceback
+
+    return "".join(traceback.format_exception(exc)).strip()
 
 
 @dataclass
@@ -52,6 +63,8 @@ class CellResult:
     reasons: list[tuple[str, int]] = field(default_factory=list)
     #: Where the per-object table is (an artifact URI).
     table_uri: str = ""
+    #: The traceback of the first object behind each reason (for ``--debug``).
+    tracebacks: dict[str, str] = field(default_factory=dict)
 
     @property
     def n_objects(self) -> int:
@@ -105,12 +118,41 @@ def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: in
 
 
 def failure_reasons(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int]]:
-    """The most common failure messages of a per-object table, with their counts."""
-    if "status" not in table or "error" not in table:
-        return []
-    failed = table[table["status"] != "ok"]["error"].fillna("").astype(str)
-    counts = failed.map(lambda e: e.splitlines()[0][:200] if e else "unknown").value_counts()
-    return [(str(reason), int(n)) for reason, n in counts.head(top).items()]
+    """The most common errors of a per-object table (failed objects, and metrics that raised
+    on an object, as ``metric NAME: ...``), with their counts."""
+    return [(reason, n) for reason, n, _ in distinct_errors(table, top)]
+
+
+def distinct_errors(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int, str]]:
+    """(first line of the error, count, the first such object's traceback), most common first."""
+    errors: list[tuple[str, str]] = []
+    tracebacks = table["traceback"] if "traceback" in table else pd.Series("", index=table.index)
+    if "status" in table and "error" in table:
+        for i in table.index[table["status"] != "ok"]:
+            errors.append((_first_line(table.at[i, "error"]), tracebacks.get(i, "")))
+    for col in [c for c in table.columns if str(c).startswith(METRIC_ERROR)]:
+        name = str(col)[len(METRIC_ERROR) :]
+        for i in table.index[table[col].notna() & (table[col] != "")]:
+            errors.append((f"metric {name}: {_first_line(table.at[i, col])}",
+                           tracebacks.get(i, "")))  # fmt: skip
+    counts: dict[str, list] = {}
+    for reason, tb in errors:
+        entry = counts.setdefault(reason, [0, tb if isinstance(tb, str) else ""])
+        entry[0] += 1
+    ranked = sorted(counts.items(), key=lambda kv: -kv[1][0])[:top]
+    return [(reason, n, tb) for reason, (n, tb) in ranked]
+
+
+def _first_line(error: object) -> str:
+    text = str(error) if isinstance(error, str) and error else "unknown"
+    return text.splitlines()[0][:200]
+
+
+def metric_errors(table: pd.DataFrame) -> list[str]:
+    """The metrics that raised on some object of this per-object table."""
+    return sorted(str(c)[len(METRIC_ERROR) :] for c in table.columns
+                  if str(c).startswith(METRIC_ERROR) and table[c].notna().any()
+                  and (table[c] != "").any())  # fmt: skip
 
 
 class ObjectCache:
@@ -210,7 +252,8 @@ def score(
     ``frame_scale``), or the reason it failed."""
     row: dict[str, Any] = {"status": "ok", "error": ""}
     if isinstance(outcome, Exception):  # the method's failure must not lose the other objects
-        row.update(status="failed", error=f"{type(outcome).__name__}: {outcome}")
+        row.update(status="failed", error=f"{type(outcome).__name__}: {outcome}",
+                   traceback=_traceback(outcome))  # fmt: skip
         return row, None
     problem = _valid_points(outcome)
     if problem:
@@ -220,14 +263,17 @@ def score(
     row["n_points"] = len(outcome.points)
     sdata, sctx, scomp = scaled(data, ctx, outcome, frame_scale)
     for metric in metrics:
+        # A metric that crashes costs its own value only: the other metrics of the object stand,
+        # and the object's status (the method's success) is unchanged.
         try:
             value = float(metric.compute(scomp, sdata, sctx))
+            if not math.isfinite(value):
+                raise ValueError(f"the metric returned {value}")
         except Exception as exc:
-            row.update(status="failed", error=f"metric {metric.name}: {type(exc).__name__}: {exc}")
-            return row, None
-        if not math.isfinite(value):
-            row.update(status="failed", error=f"metric {metric.name} is {value}")
-            return row, None
+            row[metric.name] = math.nan
+            row[f"{METRIC_ERROR}{metric.name}"] = f"{type(exc).__name__}: {exc}"
+            row.setdefault("traceback", _traceback(exc))
+            continue
         row[metric.name] = value
     for key, value in (outcome.info or {}).items():
         row[f"info.{key}"] = value
@@ -268,6 +314,9 @@ def summarize(table: pd.DataFrame, metrics: list[Metric]) -> dict[str, float]:
     }
     for m in metrics:
         values = ok[m.name].to_numpy(dtype=float) if m.name in ok else np.array([])
+        values = values[np.isfinite(values)]  # NaN: the metric raised on that object
+        if f"{METRIC_ERROR}{m.name}" in ok:
+            out[f"{m.name}.errors"] = float(len(ok) - len(values))
         if len(values):
             out[f"{m.name}.mean"] = float(values.mean())
             out[f"{m.name}.std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
@@ -305,7 +354,7 @@ class Runner:
                 for size in sizes:
                     cfg = cell_config(plan, split, size, seed, eval_points)
                     key = stable_hash(cfg)
-                    done = None if plan.force else self.tracker.find_cell(exp_id, key)
+                    done = self._finished(plan, exp_id, key)
                     if done is not None:
                         self._relabel(done.run_id, plan)
                         results.append(
@@ -322,6 +371,16 @@ class Runner:
                 method = make_method()
             results += self._run_pending(plan, method, split, refs, cache, store, exp_id, pending)
         return results
+
+    def _finished(self, plan: RunPlan, exp_id: str, key: str):
+        """The finished run of this cell, unless recomputing on purpose or one of the plan's
+        metrics raised in it (it is computed again, for every metric, once that is fixed)."""
+        if plan.force:
+            return None
+        done = self.tracker.find_cell(exp_id, key)
+        if done is not None and done.metric_errors & {m.name for m in plan.metrics}:
+            return None
+        return done
 
     def _run_pending(self, plan, method, split, refs, cache, store, exp_id, pending):
         """Compute the pending cells of a split, each under a claim (a lock per cell key): a cell
@@ -343,7 +402,7 @@ class Runner:
 
         def compute(seed, size, cfg, key) -> None:
             # Finished by another process since we looked (unless recomputing on purpose).
-            done = None if plan.force else self.tracker.find_cell(exp_id, key)
+            done = self._finished(plan, exp_id, key)
             if done is not None:
                 results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
                                           exp_id))  # fmt: skip
@@ -450,6 +509,9 @@ class Runner:
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
             self._check_gt_points(plan, run_id, table)
+            crashed = metric_errors(table)
+            if crashed:  # not finished for these metrics: the next run computes the cell again
+                tr.client.set_tag(run_id, METRIC_ERRORS_TAG, ",".join(crashed))
             tr.log_params(run_id, flatten("", cfg))
             tr.log_metrics(run_id, summary, step=size)
             tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
@@ -459,9 +521,10 @@ class Runner:
             raise
         tr.end(run_id)
         uri = tr.client.get_run(run_id).info.artifact_uri.rstrip("/") + "/per_object.csv"
-        return CellResult(
-            split, size, seed, run_id, False, summary, exp_id, failure_reasons(table), uri
-        )
+        errors = distinct_errors(table)
+        return CellResult(split, size, seed, run_id, False, summary, exp_id,
+                          [(r, n) for r, n, _ in errors], uri,
+                          {r: tb for r, _, tb in errors if tb})  # fmt: skip
 
     def _check_gt_points(self, plan: RunPlan, run_id: str, table: pd.DataFrame) -> None:
         """The card promises ``gt_points`` evaluation points per object; a dataset that has

@@ -59,6 +59,8 @@ def check_reachable(uri: str, timeout: float = 5.0) -> None:
 class FinishedCell:
     run_id: str
     metrics: dict[str, float]
+    #: Metrics that raised on some object of this cell (tag ``shapebench.metric_errors``).
+    metric_errors: frozenset[str] = frozenset()
 
 
 class Tracker:
@@ -111,7 +113,9 @@ class Tracker:
         )
         if not runs:
             return None
-        return FinishedCell(runs[0].info.run_id, dict(runs[0].data.metrics))
+        crashed = runs[0].data.tags.get("shapebench.metric_errors", "")
+        return FinishedCell(runs[0].info.run_id, dict(runs[0].data.metrics),
+                            frozenset(m for m in crashed.split(",") if m))  # fmt: skip
 
     def abandon_stale(self, exp_id: str, key: str, tag: str = "shapebench.cell_key") -> int:
         """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""

@@ -38,6 +38,8 @@ from shapebench.tracking import TRAINING_KIND, Tracker, flatten
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 #: The pid of the process that started this training and waits for it (see watch_parent).
 PARENT_ENV = "SHAPEBENCH_PARENT_PID"
+#: Suffixes of PyTorch checkpoints, which read_done checks (checksums, key) before reuse.
+TORCH_CHECKPOINTS = (".ckpt", ".pt", ".pth")
 #: How long a child training gets to stop cleanly after its parent was interrupted.
 CHILD_GRACE_SECONDS = 30
 
@@ -130,7 +132,11 @@ def read_done(workdir: Path) -> dict[str, Any] | None:
         return None
     try:
         record = json.loads(done.read_text())
-        problem = checkpoint_problem(Path(record["path"]), workdir.name)
+        path = Path(record["path"])
+        if path.suffix in TORCH_CHECKPOINTS:
+            problem = checkpoint_problem(path, workdir.name)
+        else:  # a method's own format: only the method can tell whether it is sound
+            problem = None if path.exists() else f"checkpoint {path} no longer exists"
     except (ValueError, KeyError, TypeError) as exc:
         problem = f"{done} is damaged ({type(exc).__name__}: {exc})"
     if problem is None:
