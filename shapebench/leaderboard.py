@@ -31,6 +31,7 @@ from shapebench.errors import ShapebenchError
 from shapebench.metric import MetricCard
 from shapebench.paper import PAPER_METHOD_ORDER, paper_table
 from shapebench.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
+from shapebench.records import CellRecord
 from shapebench.tracking import CELL_KIND, Tracker, experiment_name
 
 
@@ -83,8 +84,10 @@ def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
         order_by=["attributes.start_time DESC"],
         max_results=50000,
     )
-    rows = [{"run_id": r.info.run_id, "start": r.info.start_time, **r.data.tags} for r in runs]
-    return pd.DataFrame(rows)
+    # Cells are read through their record (shapebench.records), the same code that wrote them.
+    rows = [{"run_id": r.info.run_id, "start": r.info.start_time, **CellRecord.from_run(r).row()}
+            for r in runs]  # fmt: skip
+    return pd.DataFrame(rows).replace("", np.nan)
 
 
 def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFrame:
@@ -274,7 +277,8 @@ def build_board(
         )
     else:
         normalized = board_stats.normalized_table(scored, ref_row.variant)
-    root = runs["dataset.data_root"].dropna().iloc[0] if "dataset.data_root" in runs else ""
+    roots = runs["dataset.data_root"].dropna() if "dataset.data_root" in runs else pd.Series()
+    root = roots.iloc[0] if len(roots) else ""
     protocol = (
         "contexts carry points only"
         if not any(r.overrides.get("+normals") for r in rows)

@@ -19,11 +19,11 @@ def _pm(mean: float | None, std: float | None, scale: float) -> str:
 
 
 def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
+    """The primary metric (mean ± std over objects, shown at its card's scale) per split and
+    context size, failures and their most common reasons (``--debug``: with tracebacks)."""
     import os
 
-    # --debug (or SHAPEBENCH_DEBUG=1): each distinct error's traceback under its reason.
     debug = bool(os.environ.get("SHAPEBENCH_DEBUG"))
-    """Raw Chamfer x1000 (mean ± std over objects) per split and context size, and failures."""
     metric = outcome.primary_metric
     by_split = defaultdict(list)
     for cell in outcome.cells:
@@ -32,14 +32,15 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
     for split, cells in by_split.items():
         exp_id = cells[0].experiment_id
         click.echo("")
-        click.secho(f"{name} on {outcome.dataset.name}/{split}: {metric} x1000", bold=True)
+        scale = cells[0].scale(metric)
+        click.secho(f"{name} on {outcome.dataset.name}/{split}: {metric} x{scale:g}", bold=True)
         click.echo(
             f"  {'context':>7}  {'seed':>4}  {'objects':>7}  {'failed':>6}  "
             f"{'mean ± std':>18}  {'run':<9}"
         )
         for c in sorted(cells, key=lambda c: (c.seed, c.context_size)):
             m = c.metrics
-            value = _pm(m.get(f"{metric}.mean"), m.get(f"{metric}.std"), 1000.0)
+            value = _pm(m.get(f"{metric}.mean"), m.get(f"{metric}.std"), c.scale(metric))
             state = "cached" if c.skipped else "new"
             click.echo(
                 f"  {c.context_size:>7}  {c.seed:>4}  {int(m.get('n_objects', 0)):>7}  "

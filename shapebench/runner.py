@@ -30,8 +30,9 @@ from shapebench.method import Method
 from shapebench.metric import Metric
 from shapebench.protocol import Protocol
 from shapebench.provenance import git_commit
+from shapebench.records import EVAL_POINTS_ACTUAL_TAG, METRIC_ERRORS_TAG, CellRecord
 from shapebench.resolve import ResolvedMethod
-from shapebench.tracking import CELL_KIND, PARENT_KIND, Tracker, experiment_name, flatten
+from shapebench.tracking import PARENT_KIND, Tracker, experiment_name, flatten
 from shapebench.types import Completion, Context, ObjectData, ObjectRef
 from shapebench.variant import Variant
 
@@ -39,9 +40,6 @@ EXAMPLE_PLYS = 3  # completed point clouds logged per cell, for a look in the ML
 TOP_REASONS = 3  # distinct failure reasons printed per cell
 #: Per-object column prefix holding the error of a metric that raised on that object.
 METRIC_ERROR = "metric_error."
-#: Tag of a cell run listing the metrics that raised on some object (comma-separated): such a
-#: cell is not finished for those metrics, and is computed again by the next run that asks.
-METRIC_ERRORS_TAG = "shapebench.metric_errors"
 
 
 def _traceback(exc: BaseException) -> str:
@@ -65,6 +63,17 @@ class CellResult:
     table_uri: str = ""
     #: The traceback of the first object behind each reason (for ``--debug``).
     tracebacks: dict[str, str] = field(default_factory=dict)
+    #: Metric name -> the card its values follow (:meth:`MetricCard.as_tag`).
+    cards: dict[str, str] = field(default_factory=dict)
+
+    def scale(self, metric: str) -> float:
+        """The factor ``metric``'s values are shown with (its card's), 1 when unknown."""
+        from shapebench.metric import MetricCard
+
+        try:
+            return MetricCard.from_tag(self.cards[metric]).scale
+        except (KeyError, ValueError):
+            return 1.0
 
     @property
     def n_objects(self) -> int:
@@ -358,7 +367,16 @@ class Runner:
                     if done is not None:
                         self._relabel(done.run_id, plan)
                         results.append(
-                            CellResult(split, size, seed, done.run_id, True, done.metrics, exp_id)
+                            CellResult(
+                                split,
+                                size,
+                                seed,
+                                done.run_id,
+                                True,
+                                done.metrics,
+                                exp_id,
+                                cards=cfg["metrics"],
+                            )
                         )
                     else:
                         pending.append((seed, size, cfg, key))
@@ -405,7 +423,7 @@ class Runner:
             done = self._finished(plan, exp_id, key)
             if done is not None:
                 results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
-                                          exp_id))  # fmt: skip
+                                          exp_id, cards=cfg["metrics"]))  # fmt: skip
                 return
             results.append(self._run_cell(plan, method, split, refs, cache, store, exp_id,
                                           start_parent(), seed, size, cfg, key))  # fmt: skip
@@ -472,8 +490,9 @@ class Runner:
     ) -> CellResult:
         tr = self.tracker
         tr.abandon_stale(exp_id, key)
-        tags = self._tags(plan, split, size, seed, key, cfg)
-        run_id = tr.start_run(exp_id, f"{self._label(plan)} k={size} seed={seed}", tags, parent)
+        record = self._record(plan, split, size, seed, key, cfg)
+        run_id = tr.start_run(exp_id, f"{self._label(plan)} k={size} seed={seed}",
+                              record.to_tags(), parent)  # fmt: skip
         try:
             rows, contexts, examples = [], [], []
             label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
@@ -524,12 +543,13 @@ class Runner:
         errors = distinct_errors(table)
         return CellResult(split, size, seed, run_id, False, summary, exp_id,
                           [(r, n) for r, n, _ in errors], uri,
-                          {r: tb for r, _, tb in errors if tb})  # fmt: skip
+                          {r: tb for r, _, tb in errors if tb}, cfg["metrics"])  # fmt: skip
 
     def _check_gt_points(self, plan: RunPlan, run_id: str, table: pd.DataFrame) -> None:
         """The card promises ``gt_points`` evaluation points per object; a dataset that has
         fewer for some object (a sparse RGB-D fusion) is said so, and the real number recorded
-        on the run (tag ``card.eval_points_actual``, column ``gt_points`` of the table)."""
+        on the run (:attr:`CellRecord.eval_points_actual`, column ``gt_points`` of the
+        table)."""
         promised = int(getattr(plan.dataset.options, "gt_points", 0) or 0)
         if not promised or "gt_points" not in table or table["gt_points"].isna().all():
             return
@@ -537,7 +557,7 @@ class Runner:
         if fewest >= promised:
             return
         short = int((table["gt_points"] < promised).sum())
-        self.tracker.client.set_tag(run_id, "card.eval_points_actual", str(fewest))
+        self.tracker.client.set_tag(run_id, EVAL_POINTS_ACTUAL_TAG, str(fewest))
         self.echo(f"  warning: {short} object(s) of {plan.dataset.name} have fewer ground-truth "
                   f"points than the {promised} the metric card states (fewest: {fewest}); "
                   "the real counts are in per_object.csv")  # fmt: skip
@@ -551,7 +571,7 @@ class Runner:
         if plan.variant is None:
             return
         run = self.tracker.client.get_run(run_id)
-        if run.data.tags.get("variant.label") != plan.variant.label:
+        if CellRecord.from_run(run).variant_label != plan.variant.label:
             self.tracker.client.set_tag(run_id, "variant.label", plan.variant.label)
 
     def _announce(self, plan: RunPlan, split: str, refs: list[ObjectRef]) -> None:
@@ -565,40 +585,26 @@ class Runner:
         notes = ds.selection_notes(split)
         self.echo(line + (f" ({'; '.join(notes)})" if notes else ""))
 
-    def _tags(self, plan: RunPlan, split: str, size: int, seed: int, key: str, cfg: dict):
+    def _record(self, plan: RunPlan, split: str, size: int, seed: int, key: str,
+                cfg: dict) -> CellRecord:  # fmt: skip
         ds = plan.dataset
         plugin = plan.method.registration.plugin
-        eval_points = cfg["metrics"]
-        tags = {
-            "shapebench.kind": CELL_KIND,
-            "shapebench.cell_key": key,
-            "shapebench.version": __version__,
-            "method": plan.method.name,
-            "method.display_name": plan.method.display_name,
-            "method.trains": str(plan.method.cls.trains),
-            "dataset": ds.name,
-            "dataset.version": ds.version,
-            "dataset.fingerprint": ds.fingerprint(),
-            "dataset.data_root": str(ds.data_root) if ds.data_root else "",
-            "split": split,
-            "context_size": str(size),
-            "seed": str(seed),
-            "plugin.distribution": plugin.distribution,
-            "plugin.version": plugin.version,
-            "git_commit": git_commit(),
-        }
-        for name, card in eval_points.items():
-            tags[f"card.{name}"] = card
-        if plan.checkpoint.get("run_id"):
-            tags["training_run_id"] = plan.checkpoint["run_id"]
-        if plan.checkpoint.get("key"):
-            tags["checkpoint_key"] = str(plan.checkpoint["key"])
-        tags["protocol.context_normals"] = str(plan.protocol.context_normals)
-        tags["protocol.frame"] = plan.protocol.frame
-        tags["method.code"] = cfg["method"]["code"]
-        if plan.variant is not None:
-            tags.update(plan.variant.tags())
-        return tags
+        variant = plan.variant
+        return CellRecord(
+            cell_key=key, method=plan.method.name, dataset=ds.name, split=split,
+            context_size=size, seed=seed, cards=dict(cfg["metrics"]),
+            display_name=plan.method.display_name, trains=bool(plan.method.cls.trains),
+            method_code=cfg["method"]["code"], dataset_version=ds.version,
+            fingerprint=ds.fingerprint(), data_root=str(ds.data_root) if ds.data_root else "",
+            shapebench_version=__version__, plugin_distribution=plugin.distribution,
+            plugin_version=plugin.version, git_commit=git_commit(),
+            checkpoint_key=str(plan.checkpoint.get("key") or ""),
+            training_run_id=str(plan.checkpoint.get("run_id") or ""),
+            frame=plan.protocol.frame, context_normals=plan.protocol.context_normals,
+            variant_key=variant.key if variant else "",
+            variant_label=variant.label if variant else "",
+            variant_overrides=dict(variant.overrides) if variant else {},
+        )  # fmt: skip
 
     def _log_artifacts(self, run_id, table, contexts, examples) -> None:
         import trimesh

@@ -61,6 +61,8 @@ class FinishedCell:
     metrics: dict[str, float]
     #: Metrics that raised on some object of this cell (tag ``shapebench.metric_errors``).
     metric_errors: frozenset[str] = frozenset()
+    #: The run's tags, read back (a :class:`shapebench.records.CellRecord`).
+    record: Any = None
 
 
 class Tracker:
@@ -113,9 +115,11 @@ class Tracker:
         )
         if not runs:
             return None
-        crashed = runs[0].data.tags.get("shapebench.metric_errors", "")
+        from shapebench.records import CellRecord
+
+        record = CellRecord.from_run(runs[0])
         return FinishedCell(runs[0].info.run_id, dict(runs[0].data.metrics),
-                            frozenset(m for m in crashed.split(",") if m))  # fmt: skip
+                            frozenset(record.metric_errors), record)  # fmt: skip
 
     def abandon_stale(self, exp_id: str, key: str, tag: str = "shapebench.cell_key") -> int:
         """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""

@@ -291,5 +291,5 @@ def test_run_says_why_a_scene_failed_and_that_the_card_promises_too_many_points(
     assert "scene office/broken: no camera trajectory" in out
     assert "fewer ground-truth points than the 500000 the metric card states" in out
     (run,) = shapebench.cell_runs("icl-nuim-all")
-    actual = int(run.data.tags["card.eval_points_actual"])
+    actual = int(run.data.tags["eval_points.actual"])
     assert 0 < actual < 500000
