@@ -55,6 +55,9 @@ class Dataset(ABC):
     provides: ClassVar[frozenset[Supervision]] = frozenset({Supervision.SURFACE_POINTS})
     default_metric: ClassVar[str] = "chamfer-l2"
     eval_splits: ClassVar[tuple[str, ...]] = EVAL_SPLITS
+    #: Option overrides that make the dataset tiny for ``shapebench check`` and
+    #: :mod:`shapebench.testing` (few objects, few points).
+    check_options: ClassVar[dict[str, Any]] = {}
     needs_data_root: ClassVar[bool] = False
 
     def __init__(self, options: Any, cache_dir: Path, data_root: Path | None = None) -> None:

@@ -99,6 +99,10 @@ class Method(ABC):
     #: completion time). Options marked ``metadata={"completion_only": True}`` do not change the
     #: checkpoint either.
     checkpoint_family: ClassVar[str] = ""
+    #: Option overrides that make the method tiny for ``shapebench check`` and
+    #: :mod:`shapebench.testing` (a small network, one epoch): checks train and complete for real,
+    #: in seconds.
+    check_options: ClassVar[dict[str, Any]] = {}
     #: Modules besides the class's own package whose source changes results (shared training
     #: code the method imports); their code is hashed into cell and checkpoint keys together with
     #: the packages of the class and its bases (see :mod:`shapebench.code_digest`).

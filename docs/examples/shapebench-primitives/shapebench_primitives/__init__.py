@@ -1,0 +1,1 @@
+"""An example dataset plugin for shapebench (see docs/plugins.md)."""
