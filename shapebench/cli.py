@@ -181,8 +181,14 @@ def _debug(ctx: click.Context, param: click.Parameter, value: bool) -> None:
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="shapebench")
-@click.option("--debug", is_flag=True, expose_value=False, is_eager=True, callback=_debug,
-              help="Show full tracebacks: of errors, and of each distinct per-object failure.")
+@click.option(
+    "--debug",
+    is_flag=True,
+    expose_value=False,
+    is_eager=True,
+    callback=_debug,
+    help="Show full tracebacks: of errors, and of each distinct per-object failure.",
+)
 def cli() -> None:
     """Benchmark few-shot 3D shape completion.
 
@@ -720,6 +726,40 @@ def check(distribution, method_names, dataset_names, metric_names, method_opts, 
                 fg="red" if failures else "green")  # fmt: skip
     if failures:
         sys.exit(1)
+
+
+@cli.command()
+@click.argument("stores", nargs=-1, required=True, metavar="STORE...")
+@click.option(
+    "--into",
+    "into",
+    default=None,
+    metavar="URI",
+    help="Store to merge into [default: this workspace's store, or --tracking-uri].",
+)
+@store_options
+def merge(stores, into, profile, tracking_uri, cache_dir, workspace) -> None:
+    """Import the finished cells and trainings of other MLflow stores into one.
+
+    For jobs on nodes without a tracking server: each job logs to a workspace of its own, then
+    this brings their runs together. A STORE is a workspace folder, its mlflow.db, or a tracking
+    URI. Runs are matched by cell key (trainings by checkpoint key), so merging a store twice
+    adds nothing.
+
+    \b
+    Examples:
+      shapebench merge jobs/ws-0 jobs/ws-1 jobs/ws-2
+      shapebench merge jobs/ws-* --into http://127.0.0.1:5000
+    """
+    from shapebench.merge import merge_stores
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    target = into or settings.tracking_uri
+    from shapebench.tracking import check_reachable
+
+    check_reachable(target)
+    report = merge_stores(list(stores), target, echo=click.echo)
+    click.echo(f"into {target}: {report.line()}")
 
 
 def _sigterm_as_interrupt(signum: int, frame: Any) -> None:

@@ -1,0 +1,45 @@
+"""`shapebench merge`: per-job stores into one, idempotently by cell key (issue: offline nodes)."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import TINY
+
+pytestmark = pytest.mark.slow  # runs the CLI
+
+
+def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
+    sb = shapebench
+    jobs = []
+    for i, contexts in enumerate(("50", "50,100")):  # the two jobs share the cell k=50
+        job = type(sb)(tmp_path / f"job{i}", sb.cache)
+        job.workspace.mkdir()
+        res = job("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
+                  "--contexts", contexts, "-q")  # fmt: skip
+        assert res.returncode == 0, res.stderr[-3000:]
+        jobs.append(job)
+
+    res = sb("merge", *(str(j.workspace) for j in jobs))
+    assert res.returncode == 0, res.stderr[-3000:]
+    runs = sb.cell_runs("synthetic-novel")
+    assert sorted(r.data.tags["context_size"] for r in runs) == ["100", "50"]  # k=50 once
+    assert all("shapebench.merged_from" in r.data.tags for r in runs)
+    assert all(r.data.metrics["chamfer-l2.mean"] > 0 for r in runs)
+
+    again = sb("merge", *(str(j.workspace) for j in jobs))
+    assert again.returncode == 0 and "0 cell runs added" in again.stdout
+    assert len(sb.cell_runs("synthetic-novel")) == 2
+
+    # The merged store is a store like any other: its leaderboard reads the copied artifacts,
+    # and a run in it reuses the merged cells.
+    board = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--reference", "gauss",
+               "--out", str(tmp_path / "boards"))  # fmt: skip
+    assert board.returncode == 0, board.stderr[-3000:]
+    rerun = sb("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
+               "--contexts", "50,100")  # fmt: skip
+    assert rerun.returncode == 0 and " new " not in rerun.stdout
+
+
+def test_merge_names_a_missing_store(shapebench, tmp_path):
+    res = shapebench("merge", str(tmp_path / "nowhere"))
+    assert res.returncode == 2 and "no MLflow store at" in res.stderr
