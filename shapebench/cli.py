@@ -333,6 +333,13 @@ def _exit_if_all_failed(outcomes) -> None:
         sys.exit(1)
 
 
+def _argv_after(command: str) -> list[str]:
+    """This process's arguments after the sub-command ``command`` (global options before it are
+    not passed on)."""
+    args = sys.argv[1:]
+    return args[args.index(command) + 1 :] if command in args else args
+
+
 def _parse(pairs, flag) -> dict:
     from shapebench.options import parse_assignments
 
@@ -343,11 +350,27 @@ def _parse(pairs, flag) -> dict:
 @click.argument("sweep_file", type=click.Path(dir_okay=False))
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
+@click.option(
+    "--launcher",
+    type=click.Choice(["inline", "local"]),
+    default="inline",
+    show_default=True,
+    help="inline: every cell in this process; local: in -j worker processes.",
+)
+@click.option(
+    "--jobs",
+    "-j",
+    type=int,
+    default=2,
+    show_default=True,
+    help="Worker processes of --launcher local.",
+)
+@click.option("--worker", type=int, default=0, hidden=True)
 @protocol_options
 @trainer_options
 @store_options
-def sweep(sweep_file, force, quiet, frame, context_normals, profile, tracking_uri, cache_dir,
-          workspace, **trainer) -> None:  # fmt: skip
+def sweep(sweep_file, force, quiet, launcher, jobs, worker, frame, context_normals, profile,
+          tracking_uri, cache_dir, workspace, **trainer) -> None:  # fmt: skip
     """Run every method x dataset x split x context size x seed of SWEEP_FILE.
 
     Finished cells (same resolved config hash) are skipped: rerun the same command after
@@ -367,12 +390,32 @@ def sweep(sweep_file, force, quiet, frame, context_normals, profile, tracking_ur
 
     A method entry may carry a leaderboard label: {name: gauss, options: {sigma: 0.05},
     label: gauss-wide}. Exits with status 1 when every object of some cell failed.
+
+    --launcher local -j N runs the cells in N worker processes (logs under the workspace's
+    logs/), each cell once and each training once, then prints the summaries.
+
+    \b
+    Examples:
+      shapebench sweep configs/sweeps/default.yaml
+      shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
     """
     from shapebench.report import print_summary
     from shapebench.sweep import load_sweep, run_sweep
 
     spec = load_sweep(Path(sweep_file))
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
+    if launcher == "local":
+        from shapebench.launchers import run_local
+
+        if force:
+            raise ShapebenchError("--force cannot be split between workers",
+                                  "run a forced sweep with --launcher inline")  # fmt: skip
+        if jobs < 1:
+            raise ShapebenchError(f"--jobs must be at least 1, got {jobs}")
+        log_dir = settings.artifact_root.parent / "logs"
+        if run_local(_argv_after("sweep"),
+                     jobs, log_dir, click.echo):  # fmt: skip
+            click.secho("some workers failed; computing what they left here", fg="yellow")
 
     def report(method: str, dataset: str, exc: ShapebenchError) -> None:
         click.secho(f"Error: {method} on {dataset}: {exc.message}", fg="red", err=True)
@@ -392,7 +435,13 @@ def sweep(sweep_file, force, quiet, frame, context_normals, profile, tracking_ur
         )
     outcomes = []
     for outcome in run_sweep(
-        spec, settings, force, quiet, lambda seed: _trainer(settings, seed, **trainer), report
+        spec,
+        settings,
+        force,
+        quiet,
+        lambda seed: _trainer(settings, seed, **trainer),
+        report,
+        offset=worker,
     ):
         print_summary(outcome, settings)
         outcomes.append(outcome)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -194,24 +194,29 @@ def steps_into_epoch(trainer: pl.Trainer, batches_per_epoch: int) -> int:
 class ShapeDataModule(pl.LightningDataModule):
     """The ``train`` split of a shapebench dataset, loaded once, sampled every step.
 
+    ``samples``: how many samples of each kind a batch holds per object (the method's
+    ``sample_sizes()``): surface points with normals (``points``, ``normals``; every batch has
+    them, one per object when not given), SDF samples (``sdf``), occupancy queries
+    (``occupancy``) and complete-surface points (``complete``). ``need`` is what to load.
+
     ``queries_from_sdf``: OccNet's queries as the paper draws them, from the SDF samples labelled
     inside where sdf < 0 (:func:`shapebench.preprocess.samples.occupancy_from_sdf`), instead of
     the dataset's uniform occupancy samples; ``need`` must then ask for SDF samples.
     """
 
-    def __init__(self, dataset: Dataset, need: frozenset[Supervision], surface_points: int,
-                 batch_size: int, sdf_points: int = 0,
-                 quiet: bool = False, target_points: int = 0,
-                 query_points: int = 0, seed: int = 0,
-                 queries_from_sdf: bool = False) -> None:  # fmt: skip
+    def __init__(self, dataset: Dataset, need: frozenset[Supervision],
+                 samples: Mapping[Supervision, int], batch_size: int, seed: int = 0,
+                 quiet: bool = False, queries_from_sdf: bool = False) -> None:  # fmt: skip
         super().__init__()
         self.quiet = quiet
-        self.target_points = target_points
-        self.query_points = query_points
         self.dataset = dataset
         self.need = need
-        self.surface_points = surface_points
-        self.sdf_points = sdf_points
+        # One surface point when none is asked for: what was always drawn, so that every
+        # object's stream of draws stays as it was.
+        self.surface_points = samples.get(Supervision.SURFACE_POINTS, 1)
+        self.sdf_points = samples.get(Supervision.SDF_SAMPLES, 0)
+        self.query_points = samples.get(Supervision.OCCUPANCY_SAMPLES, 0)
+        self.target_points = samples.get(Supervision.COMPLETE_POINTS, 0)
         self.batch_size = batch_size
         self.seed = seed
         self.queries_from_sdf = queries_from_sdf

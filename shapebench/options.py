@@ -94,3 +94,15 @@ def build(options_cls: type, values: dict[str, Any], owner: str) -> Any:
 
 def as_dict(options: Any) -> dict[str, Any]:
     return dataclasses.asdict(options)
+
+
+def option(default: Any, help_text: str) -> Any:
+    """A dataclass field for a plugin option: its default and the help ``shapebench methods``
+    shows (``latent_dim: int = option(256, "latent code size")``)."""
+    return dataclasses.field(default=default, metadata={"help": help_text})
+
+
+def completion_option(default: Any, help_text: str) -> Any:
+    """:func:`option` for an option that acts at completion time only: changing it never
+    retrains (it is left out of the checkpoint key)."""
+    return dataclasses.field(default=default, metadata={"help": help_text, "completion_only": True})

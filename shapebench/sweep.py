@@ -108,10 +108,16 @@ def run_sweep(
     quiet: bool,
     trainer_for_seed: Callable[[int], TrainerOptions],
     on_error: Callable[[str, str, ShapebenchError], None] | None = None,
+    offset: int = 0,
 ) -> Iterator[EvalOutcome]:
+    """Evaluate every method on every dataset of ``spec``; ``offset`` rotates the order of the
+    methods (worker ``i`` of a local launcher starts on the ``i``-th method)."""
     methods = spec.methods
     if methods == "all":
         methods = [Entry(n) for n in get_registry().names("method")]
+    if methods and offset:
+        k = offset % len(methods)
+        methods = methods[k:] + methods[:k]
     registry = get_registry()  # unknown names fail before any work, not halfway through
     for m in methods:
         registry.get("method", m.name)

@@ -70,12 +70,10 @@ def test_msc_posterior_variance_shrinks_as_points_are_added_and_ignores_order():
 @pytest.mark.slow  # optimises latents: about 6 s each
 @pytest.mark.parametrize("scale", [False, True])
 def test_latent_optimisation_lowers_the_context_loss(scale):
-    from shapebench_igr.module import IGRModule
+    from shapebench_igr.method import IGR
 
     torch.manual_seed(2)
-    module = IGRModule(n_shapes=1, latent_dim=16, width=64, depth=4, lr=1e-3, lr_halve_every=10,
-                       eikonal_weight=0.1, normal_weight=1.0, latent_reg=1e-3,
-                       offsurface="official")  # fmt: skip
+    module = IGR(IGR.Options(recipe="official", latent_dim=16, width=64, depth=4)).build_module(1)
     for p in module.parameters():
         p.requires_grad_(False)
     pts = torch.stack([_sphere(200, 0.4, seed=s)[0] for s in (3, 4)])  # two objects

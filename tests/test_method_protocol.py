@@ -1,23 +1,34 @@
 """What every implicit method must respect: points-only contexts, one test-time optimiser per
-recipe, equation 6 as written by default, and the shared largest-component filter."""
+recipe, equation 6 as written by default, and the shared largest-component filter; and what the
+base of the trained methods promises: declared batch samples, modules built from the options, and
+a new method in one method class and one module (the example of docs/plugins.md)."""
 
 from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import trimesh
+from conftest import ROOT
 from shapebench_deepsdf.method import DeepSDF
 from shapebench_igr.method import IGR
 from shapebench_msc.method import MSC, MSCNoOpt
-from shapebench_msc.module import MSCModule
 from shapebench_occnet.method import OccNet
 
 from shapebench import options as opts
 from shapebench.config import load_profile, plugin_overrides
+from shapebench.dataset import Dataset
 from shapebench.implicit.completion import mesh_completion, stack_contexts
 from shapebench.implicit.networks import MSCEncoder
 from shapebench.implicit.recipes import PAPER_OPT_LR
-from shapebench.types import Context, ObjectRef
+from shapebench.method import TrainerOptions, TrainingContext
+from shapebench.preprocess.samples import occupancy_samples, sdf_samples
+from shapebench.registry import get_registry
+from shapebench.types import TRAIN, TRAINED, Category, Context, ObjectData, ObjectRef, Supervision
 
 AUTO_DECODERS = {"igr": IGR, "deepsdf": DeepSDF, "msc": MSC}
 OPTIMISER = ("opt_steps", "opt_lr", "opt_scale_by_error")
@@ -37,26 +48,27 @@ def _contexts(n: int = 200, normals: bool = False, count: int = 2) -> list[Conte
 def _tiny_msc(cls: type[MSCNoOpt] = MSC, **overrides) -> MSCNoOpt:
     """An MSC method with a tiny untrained module, as load_checkpoint would leave it."""
     method = cls(cls.Options(latent_dim=8, width=32, depth=2, encoder_width=16, encoder_layers=1,
-                             opt_steps=3, mesh_resolution=16, **overrides))  # fmt: skip
+                             opt_steps=3, mesh_resolution=16, max_target=64, lr_halve_every=10,
+                             **overrides))  # fmt: skip
     torch.manual_seed(0)
-    o = method.options
-    method.module = MSCModule(latent_dim=8, width=32, depth=2, encoder_width=16, encoder_layers=1,
-                              mean_weights=o.mean_weights, lr=o.lr, lr_halve_every=10,
-                              eikonal_weight=o.eikonal_weight, normal_weight=1.0,
-                              offsurface=o.offsurface, max_target=64,
-                              encoder_input=o.encoder_input).eval()  # fmt: skip
+    method.module = method.build_module(1).eval()
     # Make the encoder's votes non-zero, so that an input it read would move the code.
     torch.nn.init.normal_(method.module.encoder.f[-1].weight, std=0.5)
     method.device = torch.device("cpu")
     return method
 
 
+def _codes(method: MSCNoOpt, contexts: list[Context]) -> torch.Tensor:
+    """The codes MSC's ``encode`` gives (it pairs each with its posterior variance)."""
+    return torch.stack([z for z, _ in method.encode(contexts)])
+
+
 def test_msc_encoder_has_no_normal_input_and_completes_points_only_contexts():
     encoder = MSCEncoder(latent_dim=8, hidden=16, layers=1)
     assert encoder.f[0].in_features == 4 and encoder.g[0].in_features == 4  # x, y, z, s = 0
     method = _tiny_msc()
-    bare = method.infer_latents(_contexts())
-    with_normals = method.infer_latents(_contexts(normals=True))
+    bare = _codes(method, _contexts())
+    with_normals = _codes(method, _contexts(normals=True))
     assert torch.equal(bare, with_normals)  # arbitrary normals change nothing
     assert bare.abs().sum() > 0
     results = method.complete_batch(_contexts(), n_points=500)
@@ -66,17 +78,14 @@ def test_msc_encoder_has_no_normal_input_and_completes_points_only_contexts():
 
 def test_options_that_read_normals_fail_clearly_without_them():
     with pytest.raises(ValueError, match="encoder_input=normals"):
-        _tiny_msc(MSCNoOpt, encoder_input="normals").infer_latents(_contexts())
-    igr = IGR(IGR.Options(latent_dim=8, width=32, depth=2, test_normals=True, opt_steps=1))
-    from shapebench_igr.module import IGRModule
-
-    igr.module = IGRModule(n_shapes=1, latent_dim=8, width=32, depth=2, lr=1e-3,
-                           lr_halve_every=10, eikonal_weight=0.1, normal_weight=1.0,
-                           latent_reg=1e-3, offsurface="official")  # fmt: skip
+        _tiny_msc(MSCNoOpt, encoder_input="normals").encode(_contexts())
+    igr = IGR(IGR.Options(recipe="official", latent_dim=8, width=32, depth=2, test_normals=True,
+                          opt_steps=1))  # fmt: skip
+    igr.module = igr.build_module(1)
     igr.device = torch.device("cpu")
     with pytest.raises(ValueError, match="test_normals=true"):
-        igr.infer_latents(_contexts())
-    assert igr.infer_latents(_contexts(normals=True)).shape == (2, 8)
+        igr.encode(_contexts())
+    assert igr.encode(_contexts(normals=True)).shape == (2, 8)
 
 
 def test_stack_contexts_copes_with_missing_normals():
@@ -162,3 +171,133 @@ def test_largest_component_follows_the_recipe_for_every_implicit_method(cls):
     assert cls(cls.Options(recipe="official")).options.largest_component is True
     assert cls(cls.Options(recipe="paper")).options.largest_component is False
     assert cls(cls.Options(largest_component=True)).options.largest_component is True
+
+
+# -- the LightningMethod base: sample sizes, hyper-parameters, a sixth method -------------------
+
+
+class _Blobs(Dataset):
+    """Three small training meshes in memory, with every kind of training data."""
+
+    name = "blobs"
+
+    def __init__(self) -> None:
+        super().__init__(None, Path("."))
+        self.meshes = [trimesh.creation.icosphere(2, radius=0.5),
+                       trimesh.creation.box((0.8, 0.5, 0.3)),
+                       trimesh.creation.capsule(0.6, 0.2)]  # fmt: skip
+
+    def categories(self) -> list[Category]:
+        return [Category("blob", TRAINED)]
+
+    def objects(self, split: str) -> list[ObjectRef]:
+        ids = range(len(self.meshes)) if split == TRAIN else []
+        return [ObjectRef(f"blob/{i}", "blob") for i in ids]
+
+    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
+        mesh = self.meshes[int(ref.id.split("/")[1])]
+        pts, faces = trimesh.sample.sample_surface(mesh, 500, seed=0)
+        rng = np.random.default_rng(0)
+        extra = {}
+        if Supervision.SDF_SAMPLES in need:
+            extra["sdf"] = sdf_samples(mesh, 2000, rng)
+        if Supervision.OCCUPANCY_SAMPLES in need:
+            extra["occupancy"] = occupancy_samples(mesh, 2000, rng)
+        if Supervision.COMPLETE_POINTS in need:
+            extra["complete_points"] = mesh.sample(800).astype(np.float32)
+        return ObjectData(ref, pts.astype(np.float32), mesh.face_normals[faces].astype(np.float32),
+                          pts.astype(np.float32), extra)  # fmt: skip
+
+
+def _first_batch(method) -> dict[str, torch.Tensor]:
+    ctx = TrainingContext(_Blobs(), TrainerOptions(), Path("."), "", quiet=True)
+    data = method.data_module(ctx)
+    data.load_objects()
+    return next(iter(data.train_dataloader()))
+
+
+#: Per method: small options, and the batch shapes they must give (3 objects of 2 per batch).
+SAMPLE_SIZES = {
+    "igr": (dict(surface_points=40), {"points": (2, 40, 3), "normals": (2, 40, 3)}),
+    "msc": (dict(surface_points=40), {"points": (2, 40, 3)}),
+    "deepsdf": (dict(sdf_points=30), {"sdf": (2, 30, 4), "points": (2, 1, 3)}),
+    "occnet": (dict(surface_points=20, query_points=30),
+               {"points": (2, 20, 3), "occupancy": (2, 30, 4)}),
+    "pcn": (dict(surface_points=20, target_points=50),
+            {"points": (2, 20, 3), "complete": (2, 50, 3)}),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLE_SIZES))
+def test_each_method_declares_the_samples_of_its_batches(name):
+    cls = get_registry().load("method", name)
+    options, shapes = SAMPLE_SIZES[name]
+    method = cls(cls.Options(batch_shapes=2, **options))
+    assert set(method.sample_sizes()) <= method.needs() | {Supervision.OCCUPANCY_SAMPLES}
+    batch = _first_batch(method)
+    assert {k: tuple(batch[k].shape) for k in shapes} == shapes
+    kinds = {"sdf", "occupancy", "complete"}
+    assert kinds & set(batch) == kinds & set(shapes)  # nothing the method did not declare
+
+
+@pytest.mark.parametrize("name", ["deepsdf", "igr", "msc", "occnet", "pcn"])
+def test_modules_take_the_options_and_rebuild_them_from_their_hyperparameters(name):
+    cls = get_registry().load("method", name)
+    method = cls(cls.Options())
+    module = method.build_module(3)
+    assert module.options == method.options and module.n_shapes == 3
+    saved = dict(module.hparams)
+    assert all(isinstance(v, (int, float, str, bool, list, tuple, type(None)))
+               for v in saved.values())  # fmt: skip
+    again = method.Module(**saved)
+    assert again.options == method.options and again.n_shapes == 3
+    # A checkpoint written before the modules took their options: hyper-parameters named as the
+    # options it had then, and others; the missing ones take their defaults.
+    legacy = {k: v for k, v in saved.items() if k not in ("recipe", "epochs", "batch_shapes")}
+    old = method.Module(**legacy, sinkhorn_eps=0.01)
+    shapes = {k: v.shape for k, v in module.state_dict().items()}
+    assert {k: v.shape for k, v in old.state_dict().items()} == shapes
+
+
+def _docs_example(root: Path) -> str:
+    """The PointSDF plugin of docs/plugins.md, written under ``root``; its package name."""
+    doc = (ROOT / "docs" / "plugins.md").read_text()
+    doc = doc.split("## A trained method (PyTorch Lightning)")[1].split("\n## ")[0]
+    package = root / "shapebench_pointsdf"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in ("method.py", "module.py"):
+        block = re.search(rf"`shapebench_pointsdf/{name}`:\n\n```python\n(.*?)```", doc, re.DOTALL)
+        assert block, f"docs/plugins.md has no block for {name}"
+        (package / name).write_text(block.group(1))
+    return package.name
+
+
+@pytest.mark.slow  # trains a small network with Lightning: about 10 s
+def test_a_sixth_trained_method_is_one_method_class_and_one_module(tmp_path, monkeypatch):
+    """The docs' PointSDF trains, checkpoints, loads and completes with no core code of its own,
+    and registering it imports no torch."""
+    import subprocess
+    import sys
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    _docs_example(tmp_path)
+    probe = ("import sys; import shapebench_pointsdf.method; "
+             "assert 'torch' not in sys.modules, 'method.py imports torch'")  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    subprocess.run([sys.executable, "-c", probe], check=True, env=env)
+    from shapebench_pointsdf.method import PointSDF
+
+    method = PointSDF(PointSDF.Options(epochs=30, batch_shapes=3, surface_points=100,
+                                       sdf_points=256, lr=3e-3, mesh_resolution=32))  # fmt: skip
+    trainer = TrainerOptions(accelerator="cpu", devices=1, seed=0)
+    ctx = TrainingContext(_Blobs(), trainer, tmp_path / "train", "", quiet=True)
+    path = method.fit(ctx)
+    fresh = PointSDF(method.options)
+    fresh.load_checkpoint(path)
+    sphere = _Blobs().load(ObjectRef("blob/0", "blob"))
+    context = Context(sphere.ref, sphere.surface_points[:100], None, seed=0)
+    results = fresh.complete_batch([context, context], n_points=500)
+    assert all(not isinstance(r, Exception) for r in results), results
+    assert results[0].points.shape == (500, 3)
+    assert np.array_equal(results[0].points, results[1].points)

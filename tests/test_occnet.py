@@ -51,8 +51,10 @@ def test_occupancy_of_a_sphere_a_box_and_a_mesh_with_a_hole():
 @pytest.mark.parametrize("decoder", ["batchnorm", "cbatchnorm"])
 def test_a_few_training_steps_lower_the_bce(decoder):
     torch.manual_seed(0)
-    module = OccNetModule(c_dim=32, hidden_dim=32, decoder=decoder, decoder_hidden=32, lr=1e-3,
-                          input_points=300, input_noise=0.005)  # fmt: skip
+    options = OccNet.Options(c_dim=32, hidden_dim=32, decoder=decoder, decoder_hidden=32,
+                             lr=1e-3, input_points=300, input_noise=0.005)  # fmt: skip
+    module = OccNet(options).build_module(0)
+    assert isinstance(module, OccNetModule) and module.options.decoder == decoder
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.6)
     occ = torch.from_numpy(occupancy_samples(sphere, 4096, np.random.default_rng(1)))
     pts = torch.from_numpy(sphere.sample(300).astype(np.float32))

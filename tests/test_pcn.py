@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
+from shapebench_pcn.method import PCN
 from shapebench_pcn.module import PCNModule
 from shapebench_pcn.network import PCNNetwork, folding_grid
 
@@ -45,9 +46,10 @@ def _sphere(n: int, seed: int) -> torch.Tensor:
 @pytest.mark.slow  # trains PCN: about a minute
 def test_training_lowers_the_loss_and_completion_beats_the_raw_context():
     torch.manual_seed(1)
-    module = PCNModule(feature=64, num_coarse=64, grid_size=2, grid_scale=0.05, lr=1e-3,
-                       lr_decay=0.7, lr_decay_steps=1000, alpha_steps=[0, 0, 0],
-                       context_sizes=[50])  # fmt: skip
+    options = PCN.Options(feature=64, num_coarse=64, grid_size=2, grid_scale=0.05, lr=1e-3,
+                          lr_decay=0.7, lr_decay_steps=1000, alpha_steps=(0, 0, 0),
+                          context_sizes=(50,))  # fmt: skip
+    module = PCNModule(options)
     target = _sphere(512, 2)[None]
     context = _sphere(50, 3)[None]
     opt = torch.optim.Adam(module.parameters(), lr=3e-3)

@@ -19,50 +19,49 @@ optimiser and the largest-component filter are shared with IGR and MSC
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
-from shapebench_igr.options import _c, opt_recipe_option, opt_scale_option, opt_steps_option
+from dataclasses import dataclass
 
 from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.recipes import apply_recipe, with_shared
+from shapebench.implicit.options import (
+    largest_component_option,
+    opt_recipe_option,
+    opt_scale_option,
+    opt_steps_option,
+    recipe_option,
+)
+from shapebench.implicit.recipes import with_shared
+from shapebench.options import completion_option, option
 from shapebench.types import Context, Supervision
-
-RECIPES = with_shared({"paper": {"lr": 1e-3}, "official": {"lr": 5e-4}}, decoder="deepsdf")
 
 
 @dataclass(frozen=True)
 class DeepSDFOptions:
-    recipe: str = field(
-        default="paper",
-        metadata={"help": "where paper and official code disagree: 'paper' or 'official' values"},
-    )
-    latent_dim: int = field(default=256, metadata={"help": "latent code size (official: 256)"})
-    width: int = field(default=512, metadata={"help": "decoder layer width (512)"})
-    depth: int = field(default=8, metadata={"help": "decoder hidden layers (8)"})
-    dropout: float = field(default=0.2, metadata={"help": "dropout after each hidden layer"})
-    epochs: int = field(default=5000, metadata={"help": "training epochs (paper: 5000)"})
-    batch_shapes: int = field(default=32, metadata={"help": "objects per batch (paper: 32)"})
-    sdf_points: int = field(default=16384, metadata={"help": "SDF samples per object and step"})
-    lr: float | None = field(
-        default=None, metadata={"help": "decoder learning rate [paper 1e-3, official 5e-4]"}
-    )
-    latent_lr: float = field(default=1e-3, metadata={"help": "code learning rate"})
-    lr_halve_every: int = field(default=500, metadata={"help": "epochs between lr halvings"})
-    clamp: float = field(default=0.1, metadata={"help": "SDF clamping distance delta"})
-    code_reg: float = field(default=1e-4, metadata={"help": "code regularisation weight"})
+    recipe: str = recipe_option()
+    latent_dim: int = option(256, "latent code size (official: 256)")
+    width: int = option(512, "decoder layer width (512)")
+    depth: int = option(8, "decoder hidden layers (8)")
+    dropout: float = option(0.2, "dropout after each hidden layer")
+    epochs: int = option(5000, "training epochs (paper: 5000)")
+    batch_shapes: int = option(32, "objects per batch (paper: 32)")
+    sdf_points: int = option(16384, "SDF samples per object and step")
+    lr: float | None = option(None, "decoder learning rate [paper 1e-3, official 5e-4]")
+    latent_lr: float = option(1e-3, "code learning rate")
+    lr_halve_every: int = option(500, "epochs between lr halvings")
+    clamp: float = option(0.1, "SDF clamping distance delta")
+    code_reg: float = option(1e-4, "code regularisation weight")
     # The test-time optimiser, shared with IGR and MSC (shapebench.implicit.recipes).
     opt_recipe: str | None = opt_recipe_option()
     opt_steps: int | None = opt_steps_option()
     opt_scale_by_error: bool | None = opt_scale_option()
-    opt_lr: float | None = _c(
+    opt_lr: float | None = completion_option(
         None, "latent optimisation step [paper 1e-3 x error_0, official 5e-3]"
     )
-    init_std: float = _c(0.01, "std of the initial latent code (0.01)")
-    mesh_resolution: int = _c(256, "marching-cubes grid points per axis (paper: 256)")
-    mesh_bf16: bool = _c(False, "evaluate the decoder in bfloat16 while meshing")
-    largest_component: bool | None = _c(
-        None, "keep only the mesh's largest connected component, by area [paper: no, official: yes]"
+    init_std: float = completion_option(0.01, "std of the initial latent code (0.01)")
+    mesh_resolution: int = completion_option(
+        256, "marching-cubes grid points per axis (paper: 256)"
     )
+    mesh_bf16: bool = completion_option(False, "evaluate the decoder in bfloat16 while meshing")
+    largest_component: bool | None = largest_component_option()
 
 
 class DeepSDF(ImplicitMethod):
@@ -70,34 +69,16 @@ class DeepSDF(ImplicitMethod):
     description = "auto-decoder trained on SDF samples; latent optimisation on the context"
     supervision = frozenset({Supervision.SDF_SAMPLES})
     Options = DeepSDFOptions
+    module_path = "shapebench_deepsdf.module:DeepSDFModule"
+    recipes = with_shared({"paper": {"lr": 1e-3}, "official": {"lr": 5e-4}}, decoder="deepsdf")
 
-    def __init__(self, options=None) -> None:
-        super().__init__(options)
-        self.options = apply_recipe(self.options, RECIPES, "deepsdf")
+    def sample_sizes(self) -> dict[Supervision, int]:
+        return {Supervision.SDF_SAMPLES: self.options.sdf_points}
 
-    @property
-    def Module(self):  # imported lazily: torch stays out of registration
-        from shapebench_deepsdf.module import DeepSDFModule
-
-        return DeepSDFModule
-
-    def build_module(self, n_shapes: int):
-        o = self.options
-        return self.Module(n_shapes=n_shapes, latent_dim=o.latent_dim, width=o.width,
-                           depth=o.depth, dropout=o.dropout, lr=o.lr, latent_lr=o.latent_lr,
-                           lr_halve_every=o.lr_halve_every, clamp=o.clamp,
-                           code_reg=o.code_reg)  # fmt: skip
-
-    def infer_latents(self, contexts: list[Context]):
-        from shapebench.implicit.completion import (
-            initial_latents,
-            optimise_latents,
-            stack_contexts,  # fmt: skip
-        )
+    def encode(self, contexts: list[Context]):
+        from shapebench.implicit.completion import initial_latents, stack_contexts
 
         o = self.options
         pts, _ = stack_contexts(contexts, self.device)
         z0 = initial_latents(contexts, o.latent_dim, o.init_std, self.device)
-        loss = self.module.completion_loss(pts)
-        z, _ = optimise_latents(loss, z0, o.opt_steps, o.opt_lr, o.opt_scale_by_error)
-        return z
+        return self.optimise_codes(self.module.completion_loss(pts), z0)

@@ -5,63 +5,56 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-import pytorch_lightning as pl
 import torch
 from torch import nn
 
 from shapebench.implicit.losses import clamped_l1
+from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import DeepSDFDecoder
 from shapebench.lightning_fit import adam_halving
+from shapebench_deepsdf.method import DeepSDFOptions
 
 
-class DeepSDFModule(pl.LightningModule):
-    def __init__(
-        self,
-        n_shapes: int,
-        latent_dim: int,
-        width: int,
-        depth: int,
-        dropout: float,
-        lr: float,
-        latent_lr: float,
-        lr_halve_every: int,
-        clamp: float,
-        code_reg: float,
-    ) -> None:
-        super().__init__()
-        self.save_hyperparameters()
-        self.decoder = DeepSDFDecoder(latent_dim, width, depth, dropout)
-        self.latents = nn.Embedding(n_shapes, latent_dim, max_norm=1.0)
-        nn.init.normal_(self.latents.weight, 0.0, 1.0 / math.sqrt(latent_dim))
+class DeepSDFModule(OptionsModule):
+    Options = DeepSDFOptions
+    options: DeepSDFOptions
+
+    def __init__(self, options: DeepSDFOptions | None = None, n_shapes: int = 0,
+                 **saved) -> None:  # fmt: skip
+        super().__init__(options, n_shapes, **saved)
+        o = self.options
+        self.decoder = DeepSDFDecoder(o.latent_dim, o.width, o.depth, o.dropout)
+        self.latents = nn.Embedding(n_shapes, o.latent_dim, max_norm=1.0)
+        nn.init.normal_(self.latents.weight, 0.0, 1.0 / math.sqrt(o.latent_dim))
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        h = self.hparams
+        o = self.options
         z = self.latents(batch["index"])
         sdf = batch["sdf"]
-        data = clamped_l1(self.decoder(z, sdf[..., :3]), sdf[..., 3], h.clamp).mean()
+        data = clamped_l1(self.decoder(z, sdf[..., :3]), sdf[..., 3], o.clamp).mean()
         ramp = min(1.0, self.current_epoch / 100)  # the official regulariser ramps up over 100
-        reg = h.code_reg * ramp * z.norm(dim=-1).mean()
+        reg = o.code_reg * ramp * z.norm(dim=-1).mean()
         loss = data + reg
         self.log_dict({"train/loss": loss, "train/sdf_l1": data}, on_step=False, on_epoch=True,
                       batch_size=len(z), sync_dist=True)  # fmt: skip
         return loss
 
     def configure_optimizers(self):
-        h = self.hparams
+        o = self.options
         groups = [
-            {"params": self.decoder.parameters(), "lr": h.lr},
-            {"params": self.latents.parameters(), "lr": h.latent_lr},
+            {"params": self.decoder.parameters(), "lr": o.lr},
+            {"params": self.latents.parameters(), "lr": o.latent_lr},
         ]
-        return adam_halving(groups, h.lr, h.lr_halve_every)
+        return adam_halving(groups, o.lr, o.lr_halve_every)
 
     def completion_loss(self, points: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         """Only the context points, with SDF 0, and 1e-4 * mean(z^2) (``reconstruct.py``'s
         regulariser)."""
-        h = self.hparams
+        o = self.options
         target = torch.zeros(points.shape[:2], device=points.device)
 
         def loss(z: torch.Tensor) -> torch.Tensor:
-            data = clamped_l1(self.decoder(z, points), target, h.clamp)
-            return data + h.code_reg * (z**2).mean(dim=1)
+            data = clamped_l1(self.decoder(z, points), target, o.clamp)
+            return data + o.code_reg * (z**2).mean(dim=1)
 
         return loss

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import pytorch_lightning as pl
 import torch
 from torch import nn
 
 from shapebench.implicit.losses import eikonal, gradient, normal_term, offsurface_samples
+from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import IGRDecoder
 from shapebench.lightning_fit import adam_halving
+from shapebench_igr.method import IGROptions
 
 
 def surface_losses(
@@ -33,41 +34,42 @@ def surface_losses(
     return terms
 
 
-class IGRModule(pl.LightningModule):
-    def __init__(self, n_shapes: int, latent_dim: int, width: int, depth: int, lr: float,
-                 lr_halve_every: int, eikonal_weight: float, normal_weight: float,
-                 latent_reg: float, offsurface: str) -> None:  # fmt: skip
-        super().__init__()
-        self.save_hyperparameters()
-        self.decoder = IGRDecoder(latent_dim, width, depth)
-        self.latents = nn.Parameter(torch.zeros(n_shapes, latent_dim))  # IGR starts codes at 0
+class IGRModule(OptionsModule):
+    Options = IGROptions
+    options: IGROptions
+
+    def __init__(self, options: IGROptions | None = None, n_shapes: int = 0, **saved) -> None:
+        super().__init__(options, n_shapes, **saved)
+        o = self.options
+        self.decoder = IGRDecoder(o.latent_dim, o.width, o.depth)
+        self.latents = nn.Parameter(torch.zeros(n_shapes, o.latent_dim))  # IGR starts codes at 0
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        h = self.hparams
+        o = self.options
         z = self.latents[batch["index"]]
-        t = surface_losses(self.decoder, z, batch["points"], batch["normals"], h.offsurface)
+        t = surface_losses(self.decoder, z, batch["points"], batch["normals"], o.offsurface)
         latent = z.norm(dim=-1).mean()
-        loss = (t["manifold"].mean() + h.eikonal_weight * t["eikonal"].mean()
-                + h.normal_weight * t["normals"].mean() + h.latent_reg * latent)  # fmt: skip
+        loss = (t["manifold"].mean() + o.eikonal_weight * t["eikonal"].mean()
+                + o.normal_weight * t["normals"].mean() + o.latent_reg * latent)  # fmt: skip
         self.log_dict({"train/loss": loss, "train/manifold": t["manifold"].mean(),
                        "train/eikonal": t["eikonal"].mean(), "train/normals": t["normals"].mean()},
                       on_step=False, on_epoch=True, batch_size=len(z), sync_dist=True)  # fmt: skip
         return loss
 
     def configure_optimizers(self):
-        return adam_halving(self.parameters(), self.hparams.lr, self.hparams.lr_halve_every)
+        return adam_halving(self.parameters(), self.options.lr, self.options.lr_halve_every)
 
     def completion_loss(
         self, points: torch.Tensor, normals: torch.Tensor | None
     ) -> Callable[[torch.Tensor], torch.Tensor]:
         """The per-object loss a latent code is optimised with at completion time."""
-        h = self.hparams
+        o = self.options
 
         def loss(z: torch.Tensor) -> torch.Tensor:
-            t = surface_losses(self.decoder, z, points, normals, h.offsurface)
-            total = t["manifold"] + h.eikonal_weight * t["eikonal"] + h.latent_reg * z.abs().mean(1)
+            t = surface_losses(self.decoder, z, points, normals, o.offsurface)
+            total = t["manifold"] + o.eikonal_weight * t["eikonal"] + o.latent_reg * z.abs().mean(1)
             if normals is not None:
-                total = total + h.normal_weight * t["normals"]
+                total = total + o.normal_weight * t["normals"]
             return total
 
         return loss

@@ -25,57 +25,51 @@ time. The precision is kept non-negative per point (see
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-from shapebench_igr.method import TRAINING_RECIPES as IGR_TRAINING_RECIPES
-from shapebench_igr.options import (
-    DecoderOptions,
-    _c,
+from shapebench.implicit.method_base import ImplicitMethod
+from shapebench.implicit.options import (
+    IGRDecoderOptions,
     opt_recipe_option,
     opt_scale_option,
     opt_steps_option,
 )
-
-from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.recipes import apply_recipe, with_shared
+from shapebench.implicit.recipes import IGR_TRAINING, with_shared
+from shapebench.options import completion_option, option
 from shapebench.types import Completion, Context, Supervision
-
-#: IGR's training recipes (same decoder, same Eikonal term); IGR's test-time optimiser.
-RECIPES = with_shared(IGR_TRAINING_RECIPES, decoder="igr")
 
 
 @dataclass(frozen=True)
-class MSCOptions(DecoderOptions):
-    latent_dim: int = field(default=1024, metadata={"help": "latent size (paper: 1024 ShapeNet)"})
-    encoder_width: int = field(default=512, metadata={"help": "width of the f and g MLPs"})
-    encoder_layers: int = field(default=3, metadata={"help": "hidden layers of f and g"})
-    encoder_input: str = field(
-        default="sdf",
-        metadata={
-            "help": "y_n of equation 2: 'sdf' (the observed signed distance, 0 on the "
-            "surface; no normals) or 'normals' (needs context normals at test time)"
-        },
+class MSCOptions(IGRDecoderOptions):
+    latent_dim: int = option(1024, "latent size (paper: 1024 ShapeNet)")
+    encoder_width: int = option(512, "width of the f and g MLPs")
+    encoder_layers: int = option(3, "hidden layers of f and g")
+    encoder_input: str = option(
+        "sdf",
+        "y_n of equation 2: 'sdf' (the observed signed distance, 0 on the surface; no normals) "
+        "or 'normals' (needs context normals at test time)",
     )
-    mean_weights: str = field(
-        default="printed",
-        metadata={"help": "posterior mean weights: 'printed' (eq. 2, 1/g_n^2) or 'increment'"},
+    mean_weights: str = option(
+        "printed", "posterior mean weights: 'printed' (eq. 2, 1/g_n^2) or 'increment'"
     )
-    max_target: int = field(default=5000, metadata={"help": "largest target subset (paper: 5000)"})
-    sigma_init: float = field(default=0.1, metadata={"help": "initial decoder noise sigma"})
-    sigma_min: float = field(default=0.01, metadata={"help": "lower bound of the learned sigma"})
+    max_target: int = option(5000, "largest target subset (paper: 5000)")
+    sigma_init: float = option(0.1, "initial decoder noise sigma")
+    sigma_min: float = option(0.01, "lower bound of the learned sigma")
     # The post-encoder optimiser (msc only), shared with IGR and DeepSDF.
     opt_recipe: str | None = opt_recipe_option()
     opt_steps: int | None = opt_steps_option()
     opt_scale_by_error: bool | None = opt_scale_option()
-    opt_lr: float | None = _c(
+    opt_lr: float | None = completion_option(
         None, "post-encoder optimisation step (msc only) [paper 1e-4 x error_0, official 5e-3]"
     )
-    opt_eikonal: float = _c(
+    opt_eikonal: float = completion_option(
         0.0,
         "Eikonal weight around the context in the post-encoder optimisation (msc only; "
         "0: equation 6 as written)",
     )
-    posterior_samples: int = _c(0, "also decode this many posterior samples per object")
+    posterior_samples: int = completion_option(
+        0, "also decode this many posterior samples per object"
+    )
 
 
 class MSCNoOpt(ImplicitMethod):
@@ -84,56 +78,40 @@ class MSCNoOpt(ImplicitMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS})
     Options = MSCOptions
     checkpoint_family = "msc"
+    module_path = "shapebench_msc.module:MSCModule"
+    #: IGR's training recipes (same decoder, same Eikonal term); IGR's test-time optimiser.
+    recipes = with_shared(IGR_TRAINING, decoder="igr")
     optimise = False
 
-    def __init__(self, options=None) -> None:
-        super().__init__(options)
-        self.options = apply_recipe(self.options, RECIPES, self.name or "msc")
-
-    @property
-    def Module(self):  # imported lazily: torch stays out of registration
-        from shapebench_msc.module import MSCModule
-
-        return MSCModule
-
-    def build_module(self, n_shapes: int):
-        o = self.options
-        return self.Module(latent_dim=o.latent_dim, width=o.width, depth=o.depth,
-                           encoder_width=o.encoder_width, encoder_layers=o.encoder_layers,
-                           mean_weights=o.mean_weights, lr=o.lr, lr_halve_every=o.lr_halve_every,
-                           eikonal_weight=o.eikonal_weight, normal_weight=o.normal_weight,
-                           offsurface=o.offsurface, max_target=o.max_target,
-                           sigma_init=o.sigma_init, sigma_min=o.sigma_min,
-                           encoder_input=o.encoder_input)  # fmt: skip
+    def sample_sizes(self) -> dict[Supervision, int]:
+        return {Supervision.SURFACE_POINTS: self.options.surface_points}
 
     def posterior(self, contexts: list[Context]):
+        """The context points and the posterior (mean, variance) of each context's code."""
         from shapebench.implicit.completion import require_normals, stack_contexts
 
         pts, nrm = stack_contexts(contexts, self.device)
         if self.options.encoder_input != "normals":  # the default reads no normals
             return pts, self.module.encoder(pts)
-        nrm = require_normals(nrm, "encoder_input=normals", self.name or "msc")
+        nrm = require_normals(nrm, "encoder_input=normals", self.label)
         return pts, self.module.encoder(pts, nrm)
 
-    def infer_latents(self, contexts: list[Context]):
+    def encode(self, contexts: list[Context]):
+        """(code, posterior variance) per context: the posterior mean, optimised by ``msc``."""
         pts, (mean, var) = self.posterior(contexts)
-        self._variance = var
-        if not self.optimise:
-            return mean
-        from shapebench.implicit.completion import optimise_latents
+        z = mean
+        if self.optimise:
+            z = self.optimise_codes(self.module.context_nll(pts, self.options.opt_eikonal), mean)
+        return list(zip(z, var, strict=True))
 
-        o = self.options
-        loss = self.module.context_nll(pts, o.opt_eikonal)
-        z, _ = optimise_latents(loss, mean, o.opt_steps, o.opt_lr, o.opt_scale_by_error)
-        return z
-
-    def decode(self, i: int, z, ctx: Context, n_points: int) -> Completion:
+    def decode(self, code, ctx: Context, n_points: int) -> Completion:
+        z, var = code
         completion = self.mesh(z, ctx, n_points)
         k = self.options.posterior_samples
         if k:
             import torch
 
-            std = self._variance[i].sqrt()
+            std = var.sqrt()
             gen = torch.Generator().manual_seed(ctx.seed % (2**63))
             samples = []
             for _ in range(k):

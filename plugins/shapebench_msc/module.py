@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-import pytorch_lightning as pl
 import torch
 from torch import nn
 
@@ -16,41 +15,29 @@ from shapebench.implicit.losses import (
     normal_term,
     offsurface_samples,  # fmt: skip
 )
+from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import IGRDecoder, MSCEncoder
 from shapebench.lightning_fit import adam_halving, step_generator
+from shapebench_msc.method import MSCOptions
 
 
-class MSCModule(pl.LightningModule):
-    def __init__(
-        self,
-        latent_dim: int,
-        width: int,
-        depth: int,
-        encoder_width: int,
-        encoder_layers: int,
-        mean_weights: str,
-        lr: float,
-        lr_halve_every: int,
-        eikonal_weight: float,
-        normal_weight: float,
-        offsurface: str,
-        max_target: int,
-        sigma_init: float = 0.1,
-        sigma_min: float = 0.01,
-        encoder_input: str = "sdf",
-    ) -> None:
-        super().__init__()
-        self.save_hyperparameters()
-        self.encoder = MSCEncoder(latent_dim, encoder_width, encoder_layers, mean_weights,
-                                  inputs=encoder_input)  # fmt: skip
-        self.decoder = IGRDecoder(latent_dim, width, depth)
+class MSCModule(OptionsModule):
+    Options = MSCOptions
+    options: MSCOptions
+
+    def __init__(self, options: MSCOptions | None = None, n_shapes: int = 0, **saved) -> None:
+        super().__init__(options, n_shapes, **saved)
+        o = self.options
+        self.encoder = MSCEncoder(o.latent_dim, o.encoder_width, o.encoder_layers,
+                                  o.mean_weights, inputs=o.encoder_input)  # fmt: skip
+        self.decoder = IGRDecoder(o.latent_dim, o.width, o.depth)
         # The decoder's noise sigma_theta is learned, from sigma_init down to at most sigma_min: a
         # sigma far below the fit's residuals makes the likelihood outweigh the Eikonal term by
         # orders of magnitude, and the decoder then collapses to a flat function.
-        self.log_sigma = nn.Parameter(torch.tensor(math.log(sigma_init)))
+        self.log_sigma = nn.Parameter(torch.tensor(math.log(o.sigma_init)))
 
     def _log_sigma(self) -> torch.Tensor:
-        return self.log_sigma.clamp(min=math.log(self.hparams.sigma_min))
+        return self.log_sigma.clamp(min=math.log(self.options.sigma_min))
 
     def sigma(self) -> torch.Tensor:
         return self._log_sigma().exp()
@@ -61,10 +48,10 @@ class MSCModule(pl.LightningModule):
         return 0.5 * (f / log_sigma.exp()) ** 2 + log_sigma + 0.5 * math.log(2 * math.pi)
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        h = self.hparams
+        o = self.options
         pts, nrm = batch["points"], batch["normals"]  # normals: the training-only normal term
         b, n, _ = pts.shape
-        y = nrm if h.encoder_input == "normals" else None  # default: (x_n, s_n = 0), no normals
+        y = nrm if o.encoder_input == "normals" else None  # default: (x_n, s_n = 0), no normals
         mq, vq = self.encoder(pts, y)  # q = p(h | D_k)
         ctx, target = self.draw_subsets(n)
         # The "prior" of equation 3, from D_k^ctxt.
@@ -72,7 +59,7 @@ class MSCModule(pl.LightningModule):
         latent = mq + vq.sqrt() * torch.randn_like(mq)
         t = len(target)
         tp, tn = pts[:, target], nrm[:, target]
-        off = offsurface_samples(pts, h.offsurface)
+        off = offsurface_samples(pts, o.offsurface)
         x = torch.cat([tp, off], dim=1).detach().requires_grad_(True)
         f = self.decoder(latent, x)
         g = gradient(f, x)
@@ -81,7 +68,7 @@ class MSCModule(pl.LightningModule):
         elbo = ((nll + kl) / n).mean()
         eik = eikonal(g[:, t:]).mean()
         normals = normal_term(g[:, :t], tn).mean()
-        loss = elbo + h.eikonal_weight * eik + h.normal_weight * normals
+        loss = elbo + o.eikonal_weight * eik + o.normal_weight * normals
         self.log_dict({"train/loss": loss, "train/elbo": elbo, "train/kl": kl.mean(),
                        "train/eikonal": eik, "train/normals": normals,
                        "train/sigma": self.sigma()},
@@ -94,13 +81,13 @@ class MSCModule(pl.LightningModule):
         gen = step_generator(self)
         m = int(math.exp(torch.empty(1).uniform_(0.0, math.log(n), generator=gen).item()))
         perm = torch.randperm(n, generator=gen)
-        t = int(torch.randint(1, min(self.hparams.max_target, n) + 1, (1,), generator=gen).item())
+        t = int(torch.randint(1, min(self.options.max_target, n) + 1, (1,), generator=gen).item())
         target = perm[torch.randperm(n, generator=gen)[:t]]
         device = self.log_sigma.device
         return perm[:m].to(device), target.to(device)
 
     def configure_optimizers(self):
-        return adam_halving(self.parameters(), self.hparams.lr, self.hparams.lr_halve_every)
+        return adam_halving(self.parameters(), self.options.lr, self.options.lr_halve_every)
 
     def context_nll(
         self, points: torch.Tensor, eikonal_weight: float = 0.0
@@ -116,13 +103,13 @@ class MSCModule(pl.LightningModule):
         ``eikonal_weight`` > 0 adds lambda * Eikonal around the context points (an optional
         regulariser that the paper does not use; off by default).
         """
-        h = self.hparams
+        o = self.options
 
         def loss(z: torch.Tensor) -> torch.Tensor:
             if eikonal_weight <= 0:
                 f = self.decoder(z, points)
                 return 0.5 * (f / self.sigma()).pow(2).mean(dim=1)
-            off = offsurface_samples(points, h.offsurface)
+            off = offsurface_samples(points, o.offsurface)
             x = torch.cat([points, off], dim=1).detach().requires_grad_(True)
             with torch.enable_grad():
                 f = self.decoder(z, x)

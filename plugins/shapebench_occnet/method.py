@@ -22,61 +22,54 @@ Paper vs official (``recipe``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from shapebench_igr.options import _c
 
 from shapebench.errors import ConfigError
-from shapebench.implicit.method_base import LightningMethod
-from shapebench.implicit.recipes import apply_recipe, with_shared
-from shapebench.types import Completion, Context, Supervision
+from shapebench.implicit.method_base import ImplicitMethod
+from shapebench.implicit.options import largest_component_option, recipe_option
+from shapebench.implicit.recipes import with_shared
+from shapebench.options import completion_option, option
+from shapebench.types import Supervision
 
-RECIPES = with_shared({"paper": {"decoder": "batchnorm", "queries": "paper"},
-                       "official": {"decoder": "cbatchnorm", "queries": "uniform"}})  # fmt: skip
 QUERY_SOURCES = ("paper", "uniform")
 
 
 @dataclass(frozen=True)
 class OccNetOptions:
-    recipe: str = field(
-        default="paper",
-        metadata={
-            "help": "'paper' (DecoderBatchNorm, SDF-sample queries) or 'official' "
-            "(DecoderCBatchNorm, uniform queries)"
-        },
+    recipe: str = recipe_option(
+        "'paper' (DecoderBatchNorm, SDF-sample queries) or 'official' (DecoderCBatchNorm, "
+        "uniform queries)"
     )
-    decoder: str | None = field(
-        default=None,
-        metadata={"help": "batchnorm or cbatchnorm [paper: batchnorm, official: cbatchnorm]"},
+    decoder: str | None = option(
+        None, "batchnorm or cbatchnorm [paper: batchnorm, official: cbatchnorm]"
     )
-    queries: str | None = field(
-        default=None,
-        metadata={
-            "help": "training queries: 'paper' (DeepSDF's SDF samples, inside where "
-            "sdf < 0) or 'uniform' (the padded box) [paper: paper, official: uniform]"
-        },
-    )
-    c_dim: int = field(default=512, metadata={"help": "code size (512)"})
-    hidden_dim: int = field(default=512, metadata={"help": "encoder width (512)"})
-    decoder_hidden: int = field(default=256, metadata={"help": "decoder width (256)"})
-    input_points: int = field(default=300, metadata={"help": "encoder points in training (300)"})
-    input_noise: float = field(default=0.005, metadata={"help": "noise std on encoder input"})
-    query_points: int = field(default=2048, metadata={"help": "occupancy queries per step"})
-    surface_points: int = field(default=300, metadata={"help": "surface points loaded per step"})
-    epochs: int = field(default=5000, metadata={"help": "training epochs (paper: 5000)"})
-    batch_shapes: int = field(default=64, metadata={"help": "objects per batch (64)"})
-    lr: float = field(default=1e-4, metadata={"help": "learning rate (1e-4)"})
-    threshold: float = _c(0.2, "occupancy probability of the surface (official: 0.2)")
-    mesh_resolution: int = _c(128, "marching-cubes cells per axis (official: 32 refined to 128)")
-    largest_component: bool | None = _c(
+    queries: str | None = option(
         None,
-        "keep only the mesh's largest connected component, by area [paper: no, official: "
-        "yes, as for every implicit method]",
+        "training queries: 'paper' (DeepSDF's SDF samples, inside where sdf < 0) or 'uniform' "
+        "(the padded box) [paper: paper, official: uniform]",
     )
+    c_dim: int = option(512, "code size (512)")
+    hidden_dim: int = option(512, "encoder width (512)")
+    decoder_hidden: int = option(256, "decoder width (256)")
+    input_points: int = option(300, "encoder points in training (300)")
+    input_noise: float = option(0.005, "noise std on encoder input")
+    query_points: int = option(2048, "occupancy queries per step")
+    surface_points: int = option(300, "surface points loaded per step")
+    epochs: int = option(5000, "training epochs (paper: 5000)")
+    batch_shapes: int = option(64, "objects per batch (64)")
+    lr: float = option(1e-4, "learning rate (1e-4)")
+    threshold: float = completion_option(
+        0.2, "occupancy probability of the surface (official: 0.2)"
+    )
+    mesh_resolution: int = completion_option(
+        128, "marching-cubes cells per axis (official: 32 refined to 128)"
+    )
+    largest_component: bool | None = largest_component_option()
 
 
-class OccNet(LightningMethod):
+class OccNet(ImplicitMethod):
     display_name = "OccNet"
     description = "ResnetPointnet encoder + occupancy decoder, meshed at tau = 0.2"
     #: Every kind either query source may need (``prepare -m occnet`` builds both); an instance
@@ -85,10 +78,17 @@ class OccNet(LightningMethod):
         {Supervision.SURFACE_POINTS, Supervision.OCCUPANCY_SAMPLES, Supervision.SDF_SAMPLES}
     )
     Options = OccNetOptions
+    module_path = "shapebench_occnet.module:OccNetModule"
+    recipes = with_shared(
+        {
+            "paper": {"decoder": "batchnorm", "queries": "paper"},
+            "official": {"decoder": "cbatchnorm", "queries": "uniform"},
+        }
+    )
+    inside_is_negative = False  # the field is the occupancy logit
 
     def __init__(self, options=None) -> None:
         super().__init__(options)
-        self.options = apply_recipe(self.options, RECIPES, "occnet")
         if self.options.queries not in QUERY_SOURCES:
             raise ConfigError(f"occnet: queries must be one of {list(QUERY_SOURCES)}, "
                               f"got {self.options.queries!r}")  # fmt: skip
@@ -98,45 +98,18 @@ class OccNet(LightningMethod):
                    else Supervision.OCCUPANCY_SAMPLES)  # fmt: skip
         return frozenset({Supervision.SURFACE_POINTS, queries})
 
+    def sample_sizes(self) -> dict[Supervision, int]:
+        o = self.options
+        return {Supervision.SURFACE_POINTS: o.surface_points,
+                Supervision.OCCUPANCY_SAMPLES: o.query_points}  # fmt: skip
+
     def data_module(self, ctx):
         data = super().data_module(ctx)
         data.queries_from_sdf = self.options.queries == "paper"
         return data
 
-    @property
-    def Module(self):  # imported lazily: torch stays out of registration
-        from shapebench_occnet.module import OccNetModule
-
-        return OccNetModule
-
-    def build_module(self, n_shapes: int):
-        o = self.options
-        return self.Module(c_dim=o.c_dim, hidden_dim=o.hidden_dim, decoder=o.decoder,
-                           decoder_hidden=o.decoder_hidden, lr=o.lr,
-                           input_points=o.input_points, input_noise=o.input_noise)  # fmt: skip
-
-    def complete_batch(self, contexts: list[Context], n_points: int):
+    def field(self, code):
         import torch
-
-        from shapebench.implicit.completion import stack_contexts
-
-        if self.module is None:
-            raise RuntimeError("occnet: load_checkpoint() was not called")
-        pts, _ = stack_contexts(contexts, self.device)
-        with torch.no_grad():
-            codes = self.module.encoder(pts)
-        out: list[Completion | Exception] = []
-        for code, ctx in zip(codes, contexts, strict=True):
-            try:
-                out.append(self._mesh(code, ctx, n_points))
-            except Exception as exc:  # no surface at tau, NaN: this object fails alone
-                out.append(exc)
-        return out
-
-    def _mesh(self, code, ctx: Context, n_points: int) -> Completion:
-        import torch
-
-        from shapebench.implicit.completion import mesh_completion
 
         decoder = self.module.decoder
 
@@ -145,7 +118,8 @@ class OccNet(LightningMethod):
             x = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float32))[None]
             return decoder(x.to(self.device), code[None]).cpu().numpy()[0]
 
+        return logits
+
+    def level(self) -> float:
         tau = self.options.threshold
-        return mesh_completion(logits, ctx, n_points, self.options.mesh_resolution,
-                               level=math.log(tau / (1 - tau)), inside_is_negative=False,
-                               keep_largest=bool(self.options.largest_component))  # fmt: skip
+        return math.log(tau / (1 - tau))  # the logit of the threshold probability

@@ -2,25 +2,29 @@
 
 from __future__ import annotations
 
-import pytorch_lightning as pl
 import torch
 from torch.nn import functional as F
 
+from shapebench.implicit.module_base import OptionsModule
+from shapebench_occnet.method import OccNetOptions
 from shapebench_occnet.network import DecoderBatchNorm, DecoderCBatchNorm, ResnetPointnet
 
 
-class OccNetModule(pl.LightningModule):
-    def __init__(self, c_dim: int, hidden_dim: int, decoder: str, decoder_hidden: int,
-                 lr: float, input_points: int, input_noise: float) -> None:  # fmt: skip
-        super().__init__()
-        self.save_hyperparameters()
-        self.encoder = ResnetPointnet(c_dim, hidden_dim)
-        if decoder == "batchnorm":
-            self.decoder = DecoderBatchNorm(c_dim, decoder_hidden)
-        elif decoder == "cbatchnorm":
-            self.decoder = DecoderCBatchNorm(c_dim, decoder_hidden)
+class OccNetModule(OptionsModule):
+    Options = OccNetOptions
+    options: OccNetOptions
+
+    def __init__(self, options: OccNetOptions | None = None, n_shapes: int = 0,
+                 **saved) -> None:  # fmt: skip
+        super().__init__(options, n_shapes, **saved)
+        o = self.options
+        self.encoder = ResnetPointnet(o.c_dim, o.hidden_dim)
+        if o.decoder == "batchnorm":
+            self.decoder = DecoderBatchNorm(o.c_dim, o.decoder_hidden)
+        elif o.decoder == "cbatchnorm":
+            self.decoder = DecoderCBatchNorm(o.c_dim, o.decoder_hidden)
         else:
-            raise ValueError(f"decoder must be 'batchnorm' or 'cbatchnorm', got {decoder!r}")
+            raise ValueError(f"decoder must be 'batchnorm' or 'cbatchnorm', got {o.decoder!r}")
 
     def loss(self, points: torch.Tensor, occupancy: torch.Tensor) -> torch.Tensor:
         """BCE on logits, summed over each object's query points, averaged over objects."""
@@ -29,13 +33,13 @@ class OccNetModule(pl.LightningModule):
         return bce.sum(dim=1).mean()
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        h = self.hparams
-        points = batch["points"][:, : h.input_points]
-        points = points + h.input_noise * torch.randn_like(points)  # as the paper and official
+        o = self.options
+        points = batch["points"][:, : o.input_points]
+        points = points + o.input_noise * torch.randn_like(points)  # as the paper and official
         loss = self.loss(points, batch["occupancy"])
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(points),
                  sync_dist=True)  # fmt: skip
         return loss
 
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)  # no schedule (official)
+        return torch.optim.Adam(self.parameters(), lr=self.options.lr)  # no schedule (official)

@@ -13,33 +13,33 @@ differ from the ground truth's (30k).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from shapebench.implicit.method_base import LightningMethod
+from shapebench.options import option
 from shapebench.types import Completion, Context, Supervision
 
 
 @dataclass(frozen=True)
 class PCNOptions:
-    feature: int = field(default=1024, metadata={"help": "global feature size (1024)"})
-    num_coarse: int = field(default=1024, metadata={"help": "coarse output points (1024)"})
-    grid_size: int = field(default=4, metadata={"help": "folding grid per axis (4: 16 points)"})
-    grid_scale: float = field(default=0.05, metadata={"help": "folding grid half-width"})
-    target_points: int = field(default=16384, metadata={"help": "target points per object"})
-    surface_points: int = field(default=1000, metadata={"help": "largest context size drawn"})
-    context_sizes: tuple[int, ...] = field(
-        default=(50, 100, 300, 1000), metadata={"help": "context sizes the batches draw from"}
+    feature: int = option(1024, "global feature size (1024)")
+    num_coarse: int = option(1024, "coarse output points (1024)")
+    grid_size: int = option(4, "folding grid per axis (4: 16 points)")
+    grid_scale: float = option(0.05, "folding grid half-width")
+    target_points: int = option(16384, "target points per object")
+    surface_points: int = option(1000, "largest context size drawn")
+    context_sizes: tuple[int, ...] = option(
+        (50, 100, 300, 1000), "context sizes the batches draw from"
     )
-    epochs: int = field(default=5000, metadata={"help": "training epochs (paper: 5000)"})
-    batch_shapes: int = field(default=32, metadata={"help": "objects per batch (32)"})
-    lr: float = field(default=1e-4, metadata={"help": "learning rate (1e-4)"})
-    lr_decay: float = field(default=0.7, metadata={"help": "lr factor every lr_decay_steps"})
-    lr_decay_steps: int = field(default=50_000, metadata={"help": "steps between lr decays"})
-    alpha_steps: tuple[int, ...] = field(
-        default=(10_000, 20_000, 50_000),
-        metadata={"help": "steps where the fine-loss weight becomes 0.1, 0.5 and 1.0"},
+    epochs: int = option(5000, "training epochs (paper: 5000)")
+    batch_shapes: int = option(32, "objects per batch (32)")
+    lr: float = option(1e-4, "learning rate (1e-4)")
+    lr_decay: float = option(0.7, "lr factor every lr_decay_steps")
+    lr_decay_steps: int = option(50_000, "steps between lr decays")
+    alpha_steps: tuple[int, ...] = option(
+        (10_000, 20_000, 50_000), "steps where the fine-loss weight becomes 0.1, 0.5 and 1.0"
     )
 
 
@@ -48,32 +48,24 @@ class PCN(LightningMethod):
     description = "point completion network: encoder, coarse points, folding to a dense cloud"
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PCNOptions
+    module_path = "shapebench_pcn.module:PCNModule"
     batch_size = 16
 
-    @property
-    def Module(self):  # imported lazily: torch stays out of registration
-        from shapebench_pcn.module import PCNModule
-
-        return PCNModule
-
-    def build_module(self, n_shapes: int):
+    def sample_sizes(self) -> dict[Supervision, int]:
         o = self.options
-        return self.Module(feature=o.feature, num_coarse=o.num_coarse, grid_size=o.grid_size,
-                           grid_scale=o.grid_scale, lr=o.lr, lr_decay=o.lr_decay,
-                           lr_decay_steps=o.lr_decay_steps, alpha_steps=list(o.alpha_steps),
-                           context_sizes=list(o.context_sizes))  # fmt: skip
+        return {Supervision.SURFACE_POINTS: o.surface_points,
+                Supervision.COMPLETE_POINTS: o.target_points}  # fmt: skip
 
-    def complete_batch(self, contexts: list[Context], n_points: int):
+    def encode(self, contexts: list[Context]) -> np.ndarray:
+        """The fine clouds, (B, num_coarse * grid_size^2, 3)."""
         import torch
 
         from shapebench.implicit.completion import stack_contexts
 
-        if self.module is None:
-            raise RuntimeError("pcn: load_checkpoint() was not called")
         pts, _ = stack_contexts(contexts, self.device)
         with torch.no_grad():
             _, fine = self.module.network(pts)
-        out: list[Completion | Exception] = []
-        for cloud in fine.cpu().numpy().astype(np.float32):
-            out.append(Completion(points=cloud))
-        return out
+        return fine.cpu().numpy().astype(np.float32)
+
+    def decode(self, code: np.ndarray, ctx: Context, n_points: int) -> Completion:
+        return Completion(points=code)  # the fine cloud as it is: PCN's output size is fixed

@@ -33,6 +33,13 @@ TEST_TIME: dict[str, dict[str, Any]] = {
     "official": {"opt_steps": 800, "opt_lr": 5e-3, "opt_scale_by_error": False},
 }
 
+#: The training recipes of IGR's decoder and losses, shared by IGR and MSC (same decoder, same
+#: Eikonal term); the test-time optimiser and meshing come from the tables below.
+IGR_TRAINING: dict[str, dict[str, Any]] = {
+    "paper": {"lr": 1e-4, "eikonal_weight": 1.0, "offsurface": "paper"},
+    "official": {"lr": 5e-3, "eikonal_weight": 0.1, "offsurface": "official"},
+}
+
 #: The ``lr`` of the paper's "lr x error_0" per decoder family (App. A.1); MSC uses IGR's decoder,
 #: and therefore IGR's value.
 PAPER_OPT_LR: dict[str, float] = {"igr": 1e-4, "deepsdf": 1e-3}
