@@ -87,7 +87,10 @@ def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
     # Cells are read through their record (shapebench.records), the same code that wrote them.
     rows = [{"run_id": r.info.run_id, "start": r.info.start_time, **CellRecord.from_run(r).row()}
             for r in runs]  # fmt: skip
-    return pd.DataFrame(rows).replace("", np.nan)
+    table = pd.DataFrame(rows)
+    if "variant.key" in table:  # runs logged before variant keys have none (see _select_runs)
+        table["variant.key"] = table["variant.key"].replace("", np.nan)
+    return table
 
 
 def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFrame:
@@ -277,8 +280,7 @@ def build_board(
         )
     else:
         normalized = board_stats.normalized_table(scored, ref_row.variant)
-    roots = runs["dataset.data_root"].dropna() if "dataset.data_root" in runs else pd.Series()
-    root = roots.iloc[0] if len(roots) else ""
+    root = runs["dataset.data_root"].dropna().iloc[0] if "dataset.data_root" in runs else ""
     protocol = (
         "contexts carry points only"
         if not any(r.overrides.get("+normals") for r in rows)
