@@ -416,55 +416,53 @@ def checkpoint_epochs(path: Path) -> int | None:
     """How many whole epochs the checkpoint at ``path`` holds (a mid-epoch one: those before
     its epoch), or None if it cannot be read."""
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        return _epochs_of(torch.load(path, map_location="cpu", weights_only=True))
     except Exception:
         return None
+
+
+def _epochs_of(state: dict[str, Any]) -> int:
     try:
         return int(state["loops"]["fit_loop"]["epoch_progress"]["current"]["processed"])
     except (KeyError, TypeError):
         return int(state.get("epoch", -1)) + 1
 
 
-def _resumable_epochs(last: Path, key: str) -> int | None:
-    """Epochs done by the checkpoint to resume from, or None when there is none. A damaged one
-    is reported and deleted (training restarts from epoch 0); one stamped with another key is
+def _describe(state: dict[str, Any]) -> str:
+    """How far a loaded checkpoint got, for messages."""
+    return f"{_epochs_of(state)} epochs done, optimiser step {int(state['global_step'])}"
+
+
+def _resume_state(last: Path, key: str) -> dict[str, Any] | None:
+    """The checkpoint to resume from, read once, or None when there is none. A damaged one is
+    reported and deleted (training restarts from epoch 0); one stamped with another key is
     refused, naming both."""
     import warnings
 
-    from shapebench.checkpoints import (
-        CorruptFileWarning,
-        checkpoint_is_readable,
-        key_of,
-        verify_checkpoint,
-    )
+    from shapebench.checkpoints import CorruptFileWarning, key_of, load_safely, verify_checkpoint
 
     if not last.exists():
         return None
-    problem = checkpoint_is_readable(last)
-    if problem:
-        warnings.warn(f"{problem}; training from epoch 0", CorruptFileWarning, stacklevel=2)
+    try:
+        state = load_safely(last)
+    except ShapebenchError as exc:
+        warnings.warn(f"{exc.message}; training from epoch 0", CorruptFileWarning, stacklevel=2)
         last.unlink(missing_ok=True)
         return None
-    if key_of(last) not in (None, key):
-        verify_checkpoint(last, key)  # raises, naming both keys
-    return checkpoint_epochs(last)
-
-
-def _progress(last: Path) -> str | None:
-    """How far the checkpoint at ``last`` got, for messages; None when it cannot be read."""
-    try:
-        step = int(torch.load(last, map_location="cpu", weights_only=True)["global_step"])
-    except Exception:
-        return None
-    return f"{checkpoint_epochs(last)} epochs done, optimiser step {step}"
+    if key_of(last, state) not in (None, key):
+        verify_checkpoint(last, key, state)  # raises, naming both keys
+    return state
 
 
 def _kept(last: Path) -> str:
     """What an interrupted training leaves to resume from, for its message."""
     if not last.exists():
         return "nothing was saved yet"
-    progress = _progress(last)
-    return f"its checkpoint ({progress}) is kept at {last}" if progress else f"{last} is unreadable"
+    try:
+        state = torch.load(last, map_location="cpu", weights_only=True)
+    except Exception:
+        return f"{last} is unreadable"
+    return f"its checkpoint ({_describe(state)}) is kept at {last}"
 
 
 def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext,
@@ -508,9 +506,10 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
         log_every_n_steps=1, enable_model_summary=False, enable_progress_bar=not ctx.quiet,
         deterministic="warn",
     )  # fmt: skip
-    resumed = _resumable_epochs(last, ctx.workdir.name)
-    if last.exists() and not ctx.quiet and trainer.is_global_zero:
-        print(f"resuming from {last} ({_progress(last)})", file=sys.stderr)
+    state = _resume_state(last, ctx.workdir.name)
+    resumed = _epochs_of(state) if state is not None else None
+    if state is not None and not ctx.quiet and trainer.is_global_zero:
+        print(f"resuming from {last} ({_describe(state)})", file=sys.stderr)
     start = time.perf_counter()
     try:
         # weights_only: resuming reads tensors and plain values only, never pickled objects.
