@@ -19,4 +19,4 @@ fi
 SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
 echo "[system] installing ${need[*]}"
 $SUDO apt-get update -qq
-DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need[@]}" >/dev/null
