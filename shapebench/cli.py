@@ -352,10 +352,11 @@ def _parse(pairs, flag) -> dict:
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
 @click.option(
     "--launcher",
-    type=click.Choice(["inline", "local"]),
-    default="inline",
-    show_default=True,
-    help="inline: every cell in this process; local: in -j worker processes.",
+    type=click.Choice(["inline", "local", "slurm", "submitit-local"]),
+    default=None,
+    help="inline: every cell in this process [default, or the sweep file's launcher.name]; "
+    "local: in -j worker processes; slurm: as SLURM jobs through submitit; submitit-local: "
+    "the slurm launcher's jobs as processes on this machine.",
 )
 @click.option(
     "--jobs",
@@ -363,14 +364,21 @@ def _parse(pairs, flag) -> dict:
     type=int,
     default=2,
     show_default=True,
-    help="Worker processes of --launcher local.",
+    help="Worker processes of --launcher local (jobs at once for submitit-local).",
 )
+@click.option("--slurm", "slurm_opts", multiple=True, metavar="KEY=VALUE",
+              help="Override a key of the sweep file's launcher block, e.g. --slurm "
+              "partition=gpu --slurm time=120 (repeatable).")  # fmt: skip
+@click.option("--status", is_flag=True,
+              help="Show finished, running, queued and failed cells with job logs.")  # fmt: skip
+@click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
 @click.option("--worker", type=int, default=0, hidden=True)
 @protocol_options
 @trainer_options
 @store_options
-def sweep(sweep_file, force, quiet, launcher, jobs, worker, frame, context_normals, profile,
-          tracking_uri, cache_dir, workspace, **trainer) -> None:  # fmt: skip
+def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, worker, frame,
+          context_normals, profile, tracking_uri, cache_dir, workspace,
+          **trainer) -> None:  # fmt: skip
     """Run every method x dataset x split x context size x seed of SWEEP_FILE.
 
     Finished cells (same resolved config hash) are skipped: rerun the same command after
@@ -387,6 +395,8 @@ def sweep(sweep_file, force, quiet, launcher, jobs, worker, frame, context_norma
       seeds: [0]
       frame: unit-radius             # or unit-diameter (the paper's scale)
       context_normals: false         # the paper's protocol: points only
+      launcher: {name: slurm, partition: gpu, time: 240, gpus_per_node: 1,
+                 tracking: per-job, methods: {gauss: {gpus_per_node: 0}}}
 
     A method entry may carry a leaderboard label: {name: gauss, options: {sigma: 0.05},
     label: gauss-wide}. Exits with status 1 when every object of some cell failed.
@@ -394,16 +404,46 @@ def sweep(sweep_file, force, quiet, launcher, jobs, worker, frame, context_norma
     --launcher local -j N runs the cells in N worker processes (logs under the workspace's
     logs/), each cell once and each training once, then prints the summaries.
 
+    --launcher slurm submits the missing trainings (one job each, one task per device) and
+    the missing cells (job arrays that start after their training), then returns; follow with
+    --status, and rerun the same command to resubmit what failed. See docs/cluster.md.
+
     \b
     Examples:
       shapebench sweep configs/sweeps/default.yaml
       shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
+      shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
+      shapebench sweep configs/sweeps/default.yaml --status
     """
     from shapebench.report import print_summary
     from shapebench.sweep import load_sweep, run_sweep
 
     spec = load_sweep(Path(sweep_file))
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
+    if frame is not None or context_normals is not None:
+        from dataclasses import replace
+
+        spec = replace(
+            spec,
+            protocol=_protocol(
+                frame or spec.protocol.frame,
+                spec.protocol.context_normals if context_normals is None else context_normals,
+            ),
+        )
+    launcher = launcher or spec.launcher.get("name") or "inline"
+    given = {k: v for k, v in trainer.items() if v is not None}
+    if status or launcher in ("slurm", "submitit-local"):
+        from shapebench.sweep_cli import cluster_sweep, show_status
+
+        if status:
+            show_status(spec, settings, given, _parse(slurm_opts, "--slurm"), launcher)
+            return
+        if force:
+            raise ShapebenchError("--force cannot be split between jobs",
+                                  "run a forced sweep with --launcher inline")  # fmt: skip
+        cluster_sweep(spec, Path(sweep_file), settings, given, _parse(slurm_opts, "--slurm"),
+                      launcher, jobs, wait, frame, context_normals)  # fmt: skip
+        return
     if launcher == "local":
         from shapebench.launchers import run_local
 
@@ -423,16 +463,6 @@ def sweep(sweep_file, force, quiet, launcher, jobs, worker, frame, context_norma
             click.echo(f"  hint: {exc.hint}", err=True)
         click.echo("  continuing with the rest of the sweep", err=True)
 
-    if frame is not None or context_normals is not None:
-        from dataclasses import replace
-
-        spec = replace(
-            spec,
-            protocol=_protocol(
-                frame or spec.protocol.frame,
-                spec.protocol.context_normals if context_normals is None else context_normals,
-            ),
-        )
     outcomes = []
     for outcome in run_sweep(
         spec,
@@ -559,6 +589,52 @@ def leaderboard(
         Path(out_dir), frame, data_version, all_variants,
     ):  # fmt: skip
         click.echo(f"wrote {path}")
+
+
+@cli.command()
+@click.option("--dataset", "-d", required=True, help="Dataset whose runs to report.")
+@click.option("--split", "splits", default=None,
+              help="Comma-separated splits [default: every split with runs].")  # fmt: skip
+@click.option("--reference", default="msc-noopt", show_default=True,
+              help="Method the normalised table divides by (paper's eq. 8).")  # fmt: skip
+@click.option("--metric", default=None, help="Metric to rank by [default: the dataset's].")
+@click.option("--frame", type=click.Choice(["unit-radius", "unit-diameter"]),
+              default="unit-radius", show_default=True,
+              help="Evaluation frame of the runs to report.")  # fmt: skip
+@click.option("--data-version", default=None, metavar="FINGERPRINT",
+              help="Report this data version (fingerprint prefix) [default: newest].")  # fmt: skip
+@click.option("--all-variants", is_flag=True,
+              help="Also show older variants that share a label with a newer one.")  # fmt: skip
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="leaderboards",
+              show_default=True, help="Where the page and its figures are written.")  # fmt: skip
+@store_options
+def report(
+    dataset, splits, reference, metric, frame, data_version, all_variants, out_dir, profile,
+    tracking_uri, cache_dir, workspace,
+) -> None:  # fmt: skip
+    """Write one self-contained HTML page for DATASET from the runs in MLflow.
+
+    Per split: the winner at each context size and the rows tied with it, the raw and
+    normalised tables (sortable), cost (test time per object, training device-hours), the
+    metric card, Chamfer against context size and accuracy against cost, the qualitative grids
+    (rows = methods, columns = context sizes), posterior-spread pictures, and provenance.
+    Written as leaderboards/<dataset>-report.html (open it in any browser; it fetches
+    nothing) and logged to MLflow beside the leaderboard.
+
+    \b
+    Examples:
+      shapebench report -d synthetic
+      shapebench report -d synthetic --split novel --reference gauss
+      shapebench report -d shapenet --frame unit-diameter
+    """
+    from shapebench.html_report import build_report
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    page, seconds = build_report(
+        settings, dataset, splits.split(",") if splits else None, reference, metric,
+        Path(out_dir), frame, data_version, all_variants,
+    )  # fmt: skip
+    click.echo(f"wrote {page} in {seconds:.1f} s (open it in a browser)")
 
 
 @cli.command()

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 #: Options of ``sweep`` that choose the launcher: stripped from the workers' command line.
-LAUNCHER_FLAGS = {"--launcher": True, "--jobs": True, "-j": True}
+LAUNCHER_FLAGS = {"--launcher": True, "--jobs": True, "-j": True, "--slurm": True}
 
 
 def worker_argv(argv: list[str], index: int) -> list[str]:

@@ -284,7 +284,26 @@ LAST = "last.ckpt"
 
 
 class TrainingInterrupted(Interrupted):
-    """Ctrl-C or SIGTERM stopped a training; the checkpoint to resume from is kept."""
+    """Ctrl-C or SIGTERM (or SLURM's pre-emption warning) stopped a training; the checkpoint to
+    resume from is kept. ``signal_name`` is the signal that asked for it (``SIGINT``...)."""
+
+    def __init__(self, message: str, hint: str | None = None,
+                 signal_name: str | None = None) -> None:  # fmt: skip
+        super().__init__(message, hint)
+        self.signal_name = signal_name
+
+
+def preemption_signal() -> Any:
+    """The signal SLURM sends before pre-empting or timing out this job (``--signal``), or None
+    outside a SLURM job. Handled like SIGTERM: stop after the step, save, and the cluster
+    launcher requeues the job (:func:`shapebench.cluster.requeue_after`)."""
+    import os
+    import signal
+
+    if not os.environ.get("SLURM_JOB_ID"):
+        return None
+    name = os.environ.get("SUBMITIT_PREEMPT_SIGNAL", "USR1")
+    return getattr(signal, f"SIG{name}", None)
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
@@ -380,7 +399,8 @@ class StopOnSignal(pl.Callback):
 
         if threading.current_thread() is not threading.main_thread():
             return  # signal handlers can only be installed from the main thread
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        preempt = preemption_signal()
+        for sig in (signal.SIGINT, signal.SIGTERM, *([preempt] if preempt else [])):
             self._previous[sig] = signal.signal(sig, self._handler)
 
     def teardown(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
@@ -410,6 +430,18 @@ class StopOnSignal(pl.Callback):
         if trainer.world_size > 1:  # a signal reaches one rank; every rank must stop together
             stop = bool(trainer.strategy.reduce_boolean_decision(stop, all=False))
         return stop
+
+
+def _cluster_environment() -> list[Any]:
+    """Inside a SLURM job: Lightning's SLURM environment (ranks and world size from ``srun``)
+    without its auto-requeue. Its handler writes an ``hpc_ckpt`` from inside the signal handler,
+    in the middle of a step; :class:`StopOnSignal` stops after the step instead, writes the
+    ``last.ckpt`` an exact resume needs, and the launcher requeues the job."""
+    from lightning_fabric.plugins.environments import SLURMEnvironment
+
+    if not SLURMEnvironment.detect():
+        return []
+    return [SLURMEnvironment(auto_requeue=False)]
 
 
 def checkpoint_epochs(path: Path) -> int | None:
@@ -498,11 +530,12 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     last = ctx.workdir / LAST
     saver = EpochCheckpoints(last, ctx.workdir.name, t.checkpoint_every_epochs,
                              t.checkpoint_minutes)  # fmt: skip
+    stopper = StopOnSignal(last)
     trainer = pl.Trainer(
         accelerator=t.accelerator, devices=t.devices, strategy=t.strategy, num_nodes=t.num_nodes,
         precision=t.precision, max_epochs=t.max_epochs or max_epochs, logger=logger,
-        callbacks=[saver, EpochSeeds(t.seed), StopOnSignal(last)], default_root_dir=ctx.workdir,
-        enable_checkpointing=False, plugins=[AtomicCheckpointIO()],
+        callbacks=[saver, EpochSeeds(t.seed), stopper], default_root_dir=ctx.workdir,
+        enable_checkpointing=False, plugins=[AtomicCheckpointIO(), *_cluster_environment()],
         log_every_n_steps=1, enable_model_summary=False, enable_progress_bar=not ctx.quiet,
         deterministic="warn",
     )  # fmt: skip
@@ -521,6 +554,7 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
             f"training stopped in epoch {trainer.current_epoch + 1} at optimiser step "
             f"{trainer.global_step}; {_kept(last)}",
             "run the same command again to resume",
+            signal_name=stopper.requested,
         ) from exc
     summary = training_summary(trainer, time.perf_counter() - start)
     summary["resumed_from_epoch"] = resumed or 0
@@ -542,7 +576,12 @@ def training_summary(trainer: pl.Trainer, seconds: float) -> dict[str, Any]:
         kind += f" ({torch.cuda.get_device_name(device)})"
     terms = {k: float(v) for k, v in sorted(trainer.callback_metrics.items())
              if k.startswith("train/")}  # fmt: skip
-    return {"wall_seconds": seconds, "device": kind, "epochs": int(trainer.current_epoch),
+    from shapebench.cost import device_hours
+
+    # Device-hours: every device is held for the whole wall time (what a cluster bills).
+    devices = int(trainer.num_devices * trainer.num_nodes)
+    return {"wall_seconds": seconds, "device": kind, "devices": devices,
+            "device_hours": device_hours(seconds, devices), "epochs": int(trainer.current_epoch),
             "optimizer_steps": int(trainer.global_step), "final": terms}  # fmt: skip
 
 
@@ -551,12 +590,16 @@ def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = Fa
     if not quiet:
         terms = summary["final"].items()
         final = ", ".join(f"{k.removeprefix('train/')} {v:.4g}" for k, v in terms)
-        print(f"training done in {summary['wall_seconds']:.1f} s on {summary['device']}: "
+        hours = summary.get("device_hours")
+        spent = f" ({hours:.3g} device-hours)" if hours is not None else ""
+        print(f"training done in {summary['wall_seconds']:.1f} s on {summary['device']}{spent}: "
               f"{summary['epochs']} epochs, {summary['optimizer_steps']} optimiser steps; "
               f"final {final or 'no logged terms'}", file=sys.stderr)  # fmt: skip
     if logger is None:
         return
     metrics = {"summary/wall_seconds": summary["wall_seconds"],
+               **({"summary/device_hours": summary["device_hours"]}
+                  if "device_hours" in summary else {}),
                "summary/epochs": float(summary["epochs"]),
                "summary/optimizer_steps": float(summary["optimizer_steps"])}  # fmt: skip
     metrics.update({f"summary/final_{k.removeprefix('train/')}": v

@@ -85,12 +85,33 @@ def _given_checkpoint_key(path: str) -> str:
     return f"{Path(path).resolve()}:{st.st_size}:{int(st.st_mtime)}"
 
 
-def evaluate(
-    req: EvalRequest,
-    settings: Settings,
-    trainer_for_seed: Callable[[int], TrainerOptions],
-    tracker: Tracker | None = None,
-) -> EvalOutcome:
+@dataclass
+class Resolved:
+    """A request with its names resolved and checked: what every seed of it evaluates."""
+
+    method: ResolvedMethod
+    dataset: Dataset
+    splits: list[str]
+    contexts: list[int]
+    metrics: list[Any]
+    primary: str
+
+
+@dataclass
+class SeedPlan:
+    """One seed of a request: its trainer settings, method (with ``--max-epochs`` applied), the
+    cells' plan and the checkpoint it needs (``checkpoint["key"]`` for trainable methods)."""
+
+    seed: int
+    trainer: TrainerOptions
+    method: ResolvedMethod
+    plan: RunPlan
+    checkpoint: dict[str, Any]
+    variant: Variant
+
+
+def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
+    """Resolve and check the names and sizes of ``req``, before any work."""
     registry = get_registry()
     method = resolve_method(registry, req.method, settings, req.method_opts)
     dataset = resolve_dataset(registry, req.dataset, settings, req.data_root, req.dataset_opts)
@@ -116,10 +137,19 @@ def evaluate(
             f"train on a dataset that has some (e.g. shapebench train -m {method.name} -d "
             "synthetic) and pass the checkpoint with --checkpoint PATH",
         )
-    tracker = tracker or Tracker(settings)  # an unreachable server fails here, before any work
-    runner = Runner(tracker)
-    cells: list[CellResult] = []
-    variant = None
+    return Resolved(method, dataset, splits, contexts, metrics, primary)
+
+
+def seed_plans(
+    req: EvalRequest,
+    resolved: Resolved,
+    settings: Settings,
+    trainer_for_seed: Callable[[int], TrainerOptions],
+) -> list[SeedPlan]:
+    """The plan of each seed of ``req``: what :func:`evaluate` runs, and what a cluster launcher
+    looks at to decide which cells and trainings are missing (:mod:`shapebench.sweep_plan`)."""
+    method, dataset = resolved.method, resolved.dataset
+    out = []
     for seed in req.seeds:
         trainer = trainer_for_seed(seed)
         seed_method = apply_trainer(method, trainer) if method.cls.trains else method
@@ -134,14 +164,31 @@ def evaluate(
                 checkpoint["training"] = training
         variant = _variant(seed_method, dataset, req, settings, trainer, training)
         plan = RunPlan(
-            seed_method, dataset, splits, contexts, [seed], metrics, req.force, req.quiet,
-            checkpoint, req.protocol, variant,
+            seed_method, dataset, resolved.splits, resolved.contexts, [seed], resolved.metrics,
+            req.force, req.quiet, checkpoint, req.protocol, variant,
         )  # fmt: skip
+        out.append(SeedPlan(seed, trainer, seed_method, plan, checkpoint, variant))
+    return out
+
+
+def evaluate(
+    req: EvalRequest,
+    settings: Settings,
+    trainer_for_seed: Callable[[int], TrainerOptions],
+    tracker: Tracker | None = None,
+) -> EvalOutcome:
+    resolved = resolve_request(req, settings)
+    tracker = tracker or Tracker(settings)  # an unreachable server fails here, before any work
+    runner = Runner(tracker)
+    cells: list[CellResult] = []
+    variant = None
+    for sp in seed_plans(req, resolved, settings, trainer_for_seed):
+        variant = sp.variant
         cells += runner.run(
-            plan,
-            _method_factory(seed_method, dataset, req, settings, trainer, checkpoint),
+            sp.plan,
+            _method_factory(sp.method, resolved.dataset, req, settings, sp.trainer, sp.checkpoint),
         )
-    return EvalOutcome(method, dataset, primary, cells, variant)
+    return EvalOutcome(resolved.method, resolved.dataset, resolved.primary, cells, variant)
 
 
 def _variant(

@@ -36,7 +36,7 @@ from shapebench.tracking import PARENT_KIND, Tracker, experiment_name, flatten
 from shapebench.types import Completion, Context, ObjectData, ObjectRef
 from shapebench.variant import Variant
 
-EXAMPLE_PLYS = 3  # completed point clouds logged per cell, for a look in the MLflow UI
+EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.pictures.PICTURES_PER_CELL)
 TOP_REASONS = 3  # distinct failure reasons printed per cell
 #: Per-object column prefix holding the error of a metric that raised on that object.
 METRIC_ERROR = "metric_error."
@@ -126,6 +126,18 @@ def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: in
     }
 
 
+def planned_cells(plan: RunPlan, split: str) -> list[tuple[int, int, dict, str]]:
+    """``(seed, context size, config, cell key)`` of every cell of ``plan`` on ``split``."""
+    opts = plan.dataset.options
+    eval_points = opts.gt_points if hasattr(opts, "gt_points") else 0
+    out = []
+    for seed in plan.seeds:
+        for size in validate_contexts(plan.contexts):
+            cfg = cell_config(plan, split, size, seed, eval_points)
+            out.append((seed, size, cfg, stable_hash(cfg)))
+    return out
+
+
 def failure_reasons(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int]]:
     """The most common errors of a per-object table (failed objects, and metrics that raised
     on an object, as ``metric NAME: ...``), with their counts."""
@@ -187,6 +199,13 @@ class ObjectCache:
         if isinstance(item, ObjectLoadError):
             raise item
         return item
+
+
+def _pm_text(metrics: dict[str, float], metric: str, scale: float) -> str:
+    mean = metrics.get(f"{metric}.mean")
+    if mean is None:
+        return "-"
+    return f"{mean * scale:.3f} ± {metrics.get(f'{metric}.std', 0.0) * scale:.3f}"
 
 
 def _progress(total: int, desc: str, quiet: bool):
@@ -345,7 +364,6 @@ class Runner:
         """Run the plan's pending cells; ``make_method`` is called only if some cell is pending
         (for trainable methods it trains or loads the checkpoint)."""
         method: Method | None = None
-        sizes = validate_contexts(plan.contexts)
         results: list[CellResult] = []
         cache = ObjectCache(plan.dataset)
         store = ContextStore(plan.dataset.cache_root, plan.dataset.data_fingerprint())
@@ -355,42 +373,28 @@ class Runner:
             if not refs:
                 continue
             exp_id = self.tracker.experiment_id(experiment_name(plan.dataset.name, split))
-            eval_points = (
-                plan.dataset.options.gt_points if hasattr(plan.dataset.options, "gt_points") else 0
-            )
             pending = []
-            for seed in plan.seeds:
-                for size in sizes:
-                    cfg = cell_config(plan, split, size, seed, eval_points)
-                    key = stable_hash(cfg)
-                    done = self._finished(plan, exp_id, key)
-                    if done is not None:
-                        self._relabel(done.run_id, plan)
-                        results.append(
-                            CellResult(
-                                split,
-                                size,
-                                seed,
-                                done.run_id,
-                                True,
-                                done.metrics,
-                                exp_id,
-                                cards=cfg["metrics"],
-                            )
-                        )
-                    else:
-                        pending.append((seed, size, cfg, key))
+            for seed, size, cfg, key in planned_cells(plan, split):
+                done = self.finished(plan, exp_id, key)
+                if done is None:
+                    pending.append((seed, size, cfg, key))
+                    continue
+                self._relabel(done.run_id, plan)
+                results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
+                                          exp_id, cards=cfg["metrics"]))  # fmt: skip
             if not pending:
                 continue
+            cached = [r for r in results if r.split == split and r.skipped]
             check_context_sizes(
                 refs, cache, [p[1] for p in pending], plan.quiet, f"{plan.dataset.name}/{split}"
             )
             if method is None:
                 method = make_method()
-            results += self._run_pending(plan, method, split, refs, cache, store, exp_id, pending)
+            results += self._run_pending(plan, method, split, refs, cache, store, exp_id, pending,
+                                         cached)  # fmt: skip
         return results
 
-    def _finished(self, plan: RunPlan, exp_id: str, key: str):
+    def finished(self, plan: RunPlan, exp_id: str, key: str):
         """The finished run of this cell, unless recomputing on purpose or one of the plan's
         metrics raised in it (it is computed again, for every metric, once that is fixed)."""
         if plan.force:
@@ -400,10 +404,11 @@ class Runner:
             return None
         return done
 
-    def _run_pending(self, plan, method, split, refs, cache, store, exp_id, pending):
+    def _run_pending(self, plan, method, split, refs, cache, store, exp_id, pending, cached=()):
         """Compute the pending cells of a split, each under a claim (a lock per cell key): a cell
         another process is computing is left to it and its result read back at the end; a claim
-        whose process died is free again (the kernel drops its lock)."""
+        whose process died is free again (the kernel drops its lock). The parent run gets the
+        metrics of every cell of the split, ``cached`` ones included (:meth:`_finish_parent`)."""
         from shapebench.locks import try_lock, wait_lock
         from shapebench.tracking import cell_lock_path
 
@@ -420,13 +425,14 @@ class Runner:
 
         def compute(seed, size, cfg, key) -> None:
             # Finished by another process since we looked (unless recomputing on purpose).
-            done = self._finished(plan, exp_id, key)
+            done = self.finished(plan, exp_id, key)
             if done is not None:
                 results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
                                           exp_id, cards=cfg["metrics"]))  # fmt: skip
                 return
             results.append(self._run_cell(plan, method, split, refs, cache, store, exp_id,
                                           start_parent(), seed, size, cfg, key))  # fmt: skip
+            self._describe_cell(plan, split, refs, results[-1])
 
         settings = self.tracker.settings
         try:
@@ -452,6 +458,7 @@ class Runner:
             if parent_lock is not None:
                 parent_lock.release()
         if parent is not None:
+            self._finish_parent(plan, parent, split, [*cached, *results])
             self.tracker.end(parent)
         return sorted(results, key=lambda r: (r.seed, r.context_size))
 
@@ -472,18 +479,118 @@ class Runner:
         lock = try_lock(cell_lock_path(self.tracker.settings, "parent-" + parent_key))
         if lock is not None:
             self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
+        variant = plan.variant
         parent = self.tracker.start_run(
             exp_id,
-            f"{self._label(plan)} on {plan.dataset.name}/{split}",
+            self._run_name(plan, f"on {plan.dataset.name}/{split}"),
             {
                 "shapebench.parent_key": parent_key,
                 "shapebench.kind": PARENT_KIND,
                 "method": plan.method.name,
                 "dataset": plan.dataset.name,
                 "split": split,
+                "variant.key": variant.key if variant else "",
+                "variant.label": self._label(plan),
+                "protocol.frame": plan.protocol.frame,
             },
         )
+        self._log_dataset(plan, split, parent)
+        metric = self._primary(plan)
+        self.tracker.describe_experiment(
+            exp_id,
+            f"shapebench evaluations on {plan.dataset.name}/{split}: a parent run per method "
+            "variant (its metrics are logged with step = context size, so the chart view "
+            "draws one line per variant), a child run per context size and seed.",
+            [f"{metric}.mean", f"{metric}.std", "failures", "seconds_per_object"],
+        )
         return parent, lock
+
+    def _run_name(self, plan: RunPlan, what: str) -> str:
+        """A run's name: the variant's label (``gauss[sigma=0.05]``) and what the run holds; a
+        ``--force`` recomputation says so, so it is not taken for the run it replaces."""
+        return f"{self._label(plan)} {what}" + (" (forced rerun)" if plan.force else "")
+
+    @staticmethod
+    def _primary(plan: RunPlan) -> str:
+        names = [m.name for m in plan.metrics]
+        default = getattr(plan.dataset, "default_metric", "")
+        return default if default in names else (names[0] if names else "")
+
+    def _log_dataset(self, plan: RunPlan, split: str, run_id: str) -> None:
+        ds = plan.dataset
+        refs = ds.objects(split)
+        self.tracker.log_dataset(
+            run_id, f"{ds.name}/{split}", ds.fingerprint(),
+            {"dataset": ds.name, "version": ds.version, "data_root": str(ds.data_root or ""),
+             "options": ds.config().get("options", {}) if isinstance(ds.config(), dict) else {}},
+            {"objects": len(refs), "categories": len({r.category for r in refs})},
+            split,
+        )  # fmt: skip
+
+    def _training_link(self, plan: RunPlan) -> str:
+        """A markdown link to the training run of this plan's checkpoint ("" when none)."""
+        run_id = str(plan.checkpoint.get("run_id") or "")
+        if not run_id:
+            return ""
+        try:
+            exp = self.tracker.client.get_run(run_id).info.experiment_id
+        except Exception:  # a checkpoint trained in another store: name the run, no link
+            return f"training run `{run_id}` (not in this store)"
+        return f"[training run {run_id[:8]}](#/experiments/{exp}/runs/{run_id})"
+
+    def _describe_cell(self, plan: RunPlan, split: str, refs: list, result: CellResult) -> None:
+        """The cell's summary as its MLflow note (shown on the run's page), and the evaluated
+        objects as its dataset input."""
+        if result.skipped:
+            return
+        metric = self._primary(plan)
+        scale = result.scale(metric)
+        m = result.metrics
+        lines = [
+            f"**{self._label(plan)}** on {plan.dataset.name}/{split}, "
+            f"{result.context_size} context points, seed {result.seed}",
+            "",
+            f"| metric | mean ± std (x{scale:g}) | objects | failed |",
+            "|---|---|---|---|",
+            f"| {metric} | {_pm_text(m, metric, scale)} | {result.n_objects} "
+            f"| {result.n_objects - result.n_ok} |",
+        ]
+        link = self._training_link(plan)
+        if link:
+            lines += ["", f"Checkpoint: {link}."]
+        self.tracker.client.set_tag(result.run_id, "mlflow.note.content", "\n".join(lines))
+        self._log_dataset(plan, split, result.run_id)
+
+    def _finish_parent(self, plan: RunPlan, parent: str, split: str,
+                       cells: list[CellResult]) -> None:  # fmt: skip
+        """The parent's metrics: each cell's, averaged over seeds, logged with step = context
+        size (one line per variant in the UI's chart view); its note, the summary table."""
+        by_size: dict[int, list[CellResult]] = {}
+        for cell in cells:
+            by_size.setdefault(cell.context_size, []).append(cell)
+        for size in sorted(by_size):
+            keys = set().union(*(c.metrics for c in by_size[size]))
+            mean = {k: float(np.mean([c.metrics[k] for c in by_size[size] if k in c.metrics]))
+                    for k in keys}  # fmt: skip
+            self.tracker.log_metrics(parent, mean, step=size)
+        metric = self._primary(plan)
+        scale = cells[0].scale(metric) if cells else 1.0
+        lines = [
+            f"**{self._label(plan)}** on {plan.dataset.name}/{split}: {metric} x{scale:g}, "
+            "mean ± std over objects",
+            "",
+            "| context | seed | objects | failed | mean ± std | run |",
+            "|---|---|---|---|---|---|",
+        ]
+        for c in sorted(cells, key=lambda c: (c.context_size, c.seed)):
+            lines.append(f"| {c.context_size} | {c.seed} | {c.n_objects} | "
+                         f"{c.n_objects - c.n_ok} | {_pm_text(c.metrics, metric, scale)} | "
+                         f"[{c.run_id[:8]}](#/experiments/{c.experiment_id}/runs/{c.run_id})"
+                         f"{' (cached)' if c.skipped else ''} |")  # fmt: skip
+        link = self._training_link(plan)
+        if link:
+            lines += ["", f"Checkpoint: {link}."]
+        self.tracker.client.set_tag(parent, "mlflow.note.content", "\n".join(lines))
 
     def _run_cell(
         self, plan, method, split, refs, cache, store, exp_id, parent, seed, size, cfg, key
@@ -491,10 +598,16 @@ class Runner:
         tr = self.tracker
         tr.abandon_stale(exp_id, key)
         record = self._record(plan, split, size, seed, key, cfg)
-        run_id = tr.start_run(exp_id, f"{self._label(plan)} k={size} seed={seed}",
+        run_id = tr.start_run(exp_id, self._run_name(plan, f"k={size} seed={seed}"),
                               record.to_tags(), parent)  # fmt: skip
         try:
             rows, contexts, examples = [], [], []
+            # The pictured objects depend on the split's object list only, never on which
+            # objects failed: every method's pictures (and .ply files) show the same objects.
+            from shapebench.pictures import picture_objects
+
+            pictured = set(picture_objects([r.id for r in refs]))
+            truths: dict[str, np.ndarray] = {}
             label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
             chunk = max(1, int(getattr(method, "batch_size", 1)))
             with _progress(len(refs), label, plan.quiet) as bar:
@@ -522,8 +635,9 @@ class Runner:
                             output, data, ctx, plan.metrics, plan.protocol.scale
                         )
                         row.update(result, seconds=seconds)
-                        if completion is not None and len(examples) < EXAMPLE_PLYS:
-                            examples.append((ctx.ref.id, completion))
+                        if completion is not None and ctx.ref.id in pictured:
+                            examples.append((ctx, completion))
+                            truths[ctx.ref.id] = data.gt_points
                         bar.update()
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
@@ -534,7 +648,8 @@ class Runner:
             tr.log_params(run_id, flatten("", cfg))
             tr.log_metrics(run_id, summary, step=size)
             tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
-            self._log_artifacts(run_id, table, contexts, examples)
+            self._log_artifacts(run_id, table, contexts, examples, truths,
+                                f"{self._label(plan)} k={size}")  # fmt: skip
         except BaseException:
             tr.end(run_id, "KILLED")
             raise
@@ -606,8 +721,13 @@ class Runner:
             variant_overrides=dict(variant.overrides) if variant else {},
         )  # fmt: skip
 
-    def _log_artifacts(self, run_id, table, contexts, examples) -> None:
+    def _log_artifacts(self, run_id, table, contexts, examples, truths=None, title="") -> None:
+        """The per-object table, the contexts, and for the pictured objects their completed
+        clouds (``completions/*.ply``) and pictures (``pictures/<object>.png``, drawn from the
+        arrays kept beside it as ``.npz``: context, completion, ground truth, spread)."""
         import trimesh
+
+        from shapebench.pictures import file_stem, picture_arrays, picture_png
 
         with tempfile.TemporaryDirectory() as tmp:
             tmpdir = Path(tmp)
@@ -622,9 +742,24 @@ class Runner:
                 np.savez_compressed(tmpdir / "contexts.npz", **arrays)
             self.tracker.client.log_artifacts(run_id, str(tmpdir))
             if examples:
+                pic_dir = tmpdir / "pictures"
+                pic_dir.mkdir()
+                start = time.perf_counter()
+                for ctx, completion in examples:
+                    obj = ctx.ref.id
+                    arrays = picture_arrays(ctx.points, completion.points,
+                                            (truths or {}).get(obj),
+                                            completion.cache.get("spread"))  # fmt: skip
+                    np.savez_compressed(pic_dir / f"{file_stem(obj)}.npz", **arrays)
+                    png = picture_png(arrays, f"{title}: {obj}" if title else obj)
+                    (pic_dir / f"{file_stem(obj)}.png").write_bytes(png)
+                self.tracker.client.log_artifacts(run_id, str(pic_dir), "pictures")
+                self.tracker.client.log_metric(run_id, "pictures_seconds",
+                                               time.perf_counter() - start)  # fmt: skip
                 ex_dir = tmpdir / "completions"
                 ex_dir.mkdir()
-                for obj, completion in examples:
+                for ctx, completion in examples:
+                    obj = ctx.ref.id
                     stem = obj.replace("/", "__")
                     trimesh.PointCloud(completion.points).export(ex_dir / f"{stem}.ply")
                     for j, sample in enumerate(completion.samples or []):

@@ -40,6 +40,8 @@ class SweepSpec:
     profile: str | None = None
     metrics: list[str] | None = None
     protocol: Protocol = field(default_factory=Protocol)
+    #: The ``launcher:`` block, read by :func:`shapebench.cluster.launcher_config`.
+    launcher: dict[str, Any] = field(default_factory=dict)
 
 
 def _entries(value: Any, key: str, path: Path) -> list[Entry]:
@@ -72,6 +74,7 @@ def load_sweep(path: Path) -> SweepSpec:
         "metrics",
         "frame",
         "context_normals",
+        "launcher",
     }
     if unknown:
         raise ConfigError(f"{path}: unknown keys {sorted(unknown)}")
@@ -98,6 +101,53 @@ def load_sweep(path: Path) -> SweepSpec:
             context_normals=bool(data.get("context_normals", False)),
             frame=data.get("frame", DEFAULT_FRAME),
         ),
+        launcher=_launcher_block(data.get("launcher"), path),
+    )
+
+
+def _launcher_block(value: Any, path: Path) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if isinstance(value, str):
+        return {"name": value}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{path}: 'launcher' is a name or a mapping like "
+                          "{name: slurm, partition: gpu, time: 120}")  # fmt: skip
+    return dict(value)
+
+
+def sweep_methods(spec: SweepSpec) -> list[Entry]:
+    """The sweep's method entries, ``methods: all`` expanded; unknown names fail here, before
+    any work, not halfway through the sweep."""
+    registry = get_registry()
+    methods = spec.methods
+    if methods == "all":
+        methods = [Entry(n) for n in registry.names("method")]
+    for m in methods:
+        registry.get("method", m.name)
+    for ds in spec.datasets:
+        registry.get("dataset", ds.name)
+    return list(methods)
+
+
+def request(spec: SweepSpec, method: Entry, dataset: Entry, force: bool = False,
+            quiet: bool = False, **narrow: Any) -> EvalRequest:  # fmt: skip
+    """The ``shapebench run`` of one method on one dataset of the sweep; ``narrow`` (splits,
+    contexts, seeds) restricts it to some of its cells, as a cluster job does."""
+    return EvalRequest(
+        method=method.name,
+        dataset=dataset.name,
+        splits=narrow.get("splits", spec.splits),
+        contexts=narrow.get("contexts", spec.contexts),
+        seeds=narrow.get("seeds", spec.seeds),
+        method_opts=method.options,
+        dataset_opts=dataset.options,
+        data_root=dataset.data_root,
+        metrics=spec.metrics,
+        force=force,
+        quiet=quiet,
+        protocol=spec.protocol,
+        label=method.label,
     )
 
 
@@ -112,42 +162,17 @@ def run_sweep(
 ) -> Iterator[EvalOutcome]:
     """Evaluate every method on every dataset of ``spec``; ``offset`` rotates the order of the
     methods (worker ``i`` of a local launcher starts on the ``i``-th method)."""
-    methods = spec.methods
-    if methods == "all":
-        methods = [Entry(n) for n in get_registry().names("method")]
+    methods = sweep_methods(spec)
     if methods and offset:
         k = offset % len(methods)
         methods = methods[k:] + methods[:k]
-    registry = get_registry()  # unknown names fail before any work, not halfway through
-    for m in methods:
-        registry.get("method", m.name)
-    for ds in spec.datasets:
-        registry.get("dataset", ds.name)
     tracker = Tracker(settings)  # so does an unreachable server
     failures: list[str] = []
     for ds in spec.datasets:
         for m in methods:
             try:
-                yield evaluate(
-                    EvalRequest(
-                        method=m.name,
-                        dataset=ds.name,
-                        splits=spec.splits,
-                        contexts=spec.contexts,
-                        seeds=spec.seeds,
-                        method_opts=m.options,
-                        dataset_opts=ds.options,
-                        data_root=ds.data_root,
-                        metrics=spec.metrics,
-                        force=force,
-                        quiet=quiet,
-                        protocol=spec.protocol,
-                        label=m.label,
-                    ),
-                    settings,
-                    trainer_for_seed,
-                    tracker,
-                )
+                yield evaluate(request(spec, m, ds, force, quiet), settings, trainer_for_seed,
+                               tracker)  # fmt: skip
             except ShapebenchError as exc:  # one method failing must not stop the others
                 failures.append(f"{m.name} on {ds.name}: {exc.message}")
                 if on_error is not None:
