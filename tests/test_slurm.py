@@ -1,0 +1,64 @@
+"""`sweep --launcher slurm` on a real one-node SLURM cluster (tests/slurm_cluster.py).
+
+CI installs slurm-wlm and munge (scripts/ci-system-packages.sh); run just this file with
+``.venv/bin/python -m pytest tests/test_slurm.py``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import pytest
+from slurm_cluster import missing_requirements, start_cluster
+from test_soak import SWEEP, all_runs, cell_runs, leaderboard
+
+pytestmark = pytest.mark.slow
+
+DDP = ["--devices", "2", "--strategy", "ddp", "--accelerator", "cpu"]
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    why = missing_requirements()
+    if why:
+        pytest.skip(f"no SLURM here: {why}")
+    c = start_cluster(tmp_path_factory.mktemp("slurm"), cpus=2)
+    yield c
+    c.stop()
+
+
+def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(shapebench, cluster,
+                                                                      tmp_path, monkeypatch):  # fmt: skip
+    monkeypatch.setenv("SLURM_CONF", str(cluster.conf))
+    sb = shapebench
+    body = SWEEP.replace("epochs: 60", "epochs: 4")
+    shared = tmp_path / "shared-sqlite.yaml"
+    shared.write_text(body + "launcher: {name: slurm, time: 20}\n")
+    res = sb("sweep", str(shared), "-q")
+    assert res.returncode != 0 and "SQLite" in res.stderr and "per-job" in res.stderr
+
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(body + "launcher: {name: slurm, time: 20, tracking: per-job}\n")
+    res = sb("sweep", str(sweep), "-q", "--wait", *DDP, timeout=900)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:] + cluster.logs()
+    assert "1 trainings to submit" in res.stdout and "8 cells: 8 finished" in res.stdout
+
+    # The training was one job of two ranks started by srun, seen by Lightning as such.
+    logs = sb.workspace / "logs" / "submitit" / "soak"
+    rank_logs = "".join(p.read_text() for p in logs.glob("*_log.err"))
+    assert "GLOBAL_RANK: 1, MEMBER: 2/2" in rank_logs
+    per_cell = Counter((r.data.tags["method"], r.data.tags["split"],
+                        r.data.tags["context_size"]) for r in cell_runs(sb))  # fmt: skip
+    assert len(per_cell) == 8 and set(per_cell.values()) == {1}
+    training = [r for r in all_runs(sb, "FINISHED")
+                if r.data.tags.get("shapebench.kind") == "training"]  # fmt: skip
+    assert len(training) == 1
+    assert training[0].data.params["training.world_size"] == "2"
+    assert all_runs(sb, "RUNNING") == []
+    board = leaderboard(sb, tmp_path / "board")
+    assert board["method"].str.startswith("igr").any() and (board["method"] == "gauss").any()
+
+    res = sb("sweep", str(sweep), "--status", *DDP)
+    assert res.returncode == 0 and "8 cells: 8 finished" in res.stdout, res.stderr
+    res = sb("sweep", str(sweep), *DDP)  # resubmitting a finished sweep submits nothing
+    assert res.returncode == 0 and "nothing to submit" in res.stdout, res.stderr
