@@ -6,7 +6,6 @@ Heavy imports (mlflow, trimesh, torch) happen inside commands, so ``shapebench -
 
 from __future__ import annotations
 
-import contextlib
 import os
 import sys
 import warnings
@@ -503,7 +502,15 @@ def train(
     """Train METHOD on DATASET's train split (one Lightning Trainer.fit in this process).
 
     The checkpoint is keyed by (method config, dataset, seed) and reused by 'run' and 'sweep';
-    an interrupted training resumes from its last checkpoint.
+    an interrupted training resumes from its last checkpoint. 'run' trains by itself when no
+    checkpoint exists: train ahead to do it on another machine or with other devices.
+
+    \b
+    Examples:
+      shapebench train -m msc -d synthetic
+      shapebench train -m pcn -d synthetic --max-epochs 5 --quiet
+      shapebench train -m msc -d shapenet --data-root ~/data/ShapeNetCore.v2 \\
+          --accelerator gpu --devices 2 --strategy ddp --profile paper
     """
     from shapebench.registry import get_registry
     from shapebench.resolve import resolve_dataset, resolve_method
@@ -629,6 +636,8 @@ def report(
     """
     from shapebench.html_report import build_report
 
+    # Reading back dozens of small artifacts would print one progress bar each.
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     page, seconds = build_report(
         settings, dataset, splits.split(",") if splits else None, reference, metric,
@@ -653,42 +662,54 @@ def report(
     multiple=True,
     help="Also prepare the train split with what METHOD needs (repeatable).",
 )
-@click.option("--jobs", "-j", default=1, show_default=True, help="Parallel worker processes.")
+@click.option("--jobs", "-j", default=1, show_default=True,
+              help="Parallel worker processes (per array task on a cluster).")  # fmt: skip
+@click.option("--launcher", type=click.Choice(["inline", "slurm", "submitit-local"]),
+              default="inline", show_default=True,
+              help="slurm: an array of --shards jobs through submitit, each preparing every "
+              "n-th object; submitit-local: the same jobs on this machine.")  # fmt: skip
+@click.option("--shards", type=int, default=8, show_default=True,
+              help="Array tasks of a cluster launcher.")  # fmt: skip
+@click.option("--slurm", "slurm_opts", multiple=True, metavar="KEY=VALUE",
+              help="SLURM settings (partition=..., time=..., cpus_per_task=...), as in a sweep "
+              "file's launcher block.")  # fmt: skip
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @plugin_options
 @store_options
-def prepare(dataset, splits, categories, methods, jobs, quiet, method_opts, dataset_opts,
-            data_root, profile, tracking_uri, cache_dir, workspace) -> None:  # fmt: skip
+def prepare(dataset, splits, categories, methods, jobs, launcher, shards, slurm_opts, quiet,
+            method_opts, dataset_opts, data_root, profile, tracking_uri, cache_dir,
+            workspace) -> None:  # fmt: skip
     """Preprocess DATASET ahead of time (the paper's §4.1), with parallel workers.
 
     Results are cached per object, so an interrupted prepare resumes; 'run' prepares whatever
     is missing by itself. Objects that cannot be processed are listed with the reason and
-    skipped.
+    skipped. On a cluster, --launcher slurm shards the objects over an array of jobs (the
+    cache folder must be on a filesystem the nodes share); the command waits for them.
 
     \b
     Examples:
       shapebench prepare -d shapenet --data-root ~/data/ShapeNetCore.v2 --jobs 2
       shapebench prepare -d shapenet --categories chair,table -m deepsdf
+      shapebench prepare -d shapenet --data-root /shared/ShapeNetCore.v2 --launcher slurm \\
+          --shards 64 --slurm partition=cpu --slurm time=60
     """
-    from shapebench.prepare import prepare as run_prepare
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.prepare import PrepareRequest, prepare_request
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
-    reg = get_registry()
-    ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    cats = categories.split(",") if categories else None
-    reports = [run_prepare(ds, splits.split(",") if splits else list(ds.eval_splits),
-                           jobs=jobs, quiet=quiet, categories=cats)]  # fmt: skip
-    need = frozenset()
-    for name in methods:  # what this configuration needs (OccNet's depends on its recipe)
-        instance = resolve_method(reg, name, settings, _parse(method_opts, "-O")).instantiate()
-        need |= instance.needs() if hasattr(instance, "needs") else instance.supervision
-    if methods:
-        from shapebench.types import TRAIN
+    req = PrepareRequest(dataset, splits.split(",") if splits else None,
+                         categories.split(",") if categories else None, list(methods),
+                         _parse(method_opts, "-O"), _parse(dataset_opts, "-D"),
+                         data_root)  # fmt: skip
+    if launcher != "inline":
+        from shapebench.cluster import prepare_on_cluster
 
-        reports.append(run_prepare(ds, [TRAIN], need, jobs, quiet, cats))
-    for report in reports:
+        failed = prepare_on_cluster(req, settings, launcher, shards, jobs,
+                                    _parse(slurm_opts, "--slurm"), click.echo)  # fmt: skip
+        if failed:
+            raise ShapebenchError(f"{failed} of {shards} prepare jobs failed",
+                                  "see the logs above; rerun to finish the rest")  # fmt: skip
+        return
+    for report in prepare_request(req, settings, jobs, quiet):
         click.echo(report.summary())
         for failure in report.failures:
             click.secho(f"  failed: {failure.ref.id}: {failure.reason}", fg="yellow")
@@ -696,34 +717,157 @@ def prepare(dataset, splits, categories, methods, jobs, quiet, method_opts, data
 
 @cli.command()
 def plugins() -> None:
-    """List installed plugins: distribution, version, module, what each provides."""
+    """List installed plugins: distribution, version, module, what each provides.
+
+    A plugin that failed to load is listed with its error; two plugins registering one name
+    are listed as a conflict.
+
+    \b
+    Examples:
+      shapebench plugins
+      shapebench check shapebench-foo              # then check what one provides
+    """
     from shapebench.report import print_plugins
 
     print_plugins()
 
 
+_PROFILE_OPTION = click.option(
+    "--profile",
+    default=None,
+    help="Also show the values in effect with this profile (configs/<kind>s/<name>.yaml and "
+    "configs/profiles/<profile>.yaml applied) [default: quick, or $SHAPEBENCH_PROFILE].",
+)
+
+
 @cli.command()
-def methods() -> None:
-    """Describe every installed method: options, supervision needed, whether it trains."""
+@_PROFILE_OPTION
+def methods(profile) -> None:
+    """Describe every installed method: options (with the values a run uses), supervision
+    needed, whether it trains.
+
+    \b
+    Examples:
+      shapebench methods
+      shapebench methods --profile paper           # the values at the paper's scale
+      shapebench run -m gauss -d synthetic -O sigma=0.02   # override one
+    """
     from shapebench.report import describe_kind
 
-    describe_kind("method")
+    describe_kind("method", _profile_name(profile))
 
 
 @cli.command()
-def datasets() -> None:
-    """Describe every installed dataset: categories, splits and options."""
+@_PROFILE_OPTION
+def datasets(profile) -> None:
+    """Describe every installed dataset: categories, splits and options (with the values a run
+    uses).
+
+    \b
+    Examples:
+      shapebench datasets
+      shapebench datasets --profile paper
+      shapebench run -m gauss -d synthetic -D test_per_category=10   # override one
+    """
     from shapebench.report import describe_kind
 
-    describe_kind("dataset")
+    describe_kind("dataset", _profile_name(profile))
+
+
+def _profile_name(profile: str | None) -> str:
+    from shapebench.config import DEFAULT_PROFILE
+
+    return profile or os.environ.get("SHAPEBENCH_PROFILE") or DEFAULT_PROFILE
 
 
 @cli.command()
 def metrics() -> None:
-    """Describe every installed metric and its card (the exact convention)."""
+    """Describe every installed metric and its card (the exact convention).
+
+    \b
+    Examples:
+      shapebench metrics
+      shapebench run -m gauss -d synthetic --metric chamfer-l2   # compute only this one
+    """
     from shapebench.report import describe_kind
 
     describe_kind("metric")
+
+
+@cli.command()
+@click.option(
+    "--kind",
+    type=click.Choice(["cell", "parent", "training", "all"]),
+    default="cell",
+    show_default=True,
+    help="cell: one per context size and seed; parent: one per method variant and split; "
+    "training: trainings.",
+)
+@click.option("--method", "-m", default=None, help="Only runs of this method.")
+@click.option("--dataset", "-d", default=None, help="Only runs on this dataset.")
+@click.option("--split", default=None, help="Only runs on this split.")
+@click.option("--context", "-k", type=int, default=None, help="Only cells of this context size.")
+@click.option(
+    "--status",
+    type=click.Choice(["finished", "running", "failed", "killed"], case_sensitive=False),
+    default=None,
+    help="Only runs in this state.",
+)
+@click.option("--limit", default=1000, show_default=True, help="At most this many (newest).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON (one object per run).")
+@store_options
+def runs(kind, method, dataset, split, context, status, limit, as_json, profile, tracking_uri,
+         cache_dir, workspace) -> None:  # fmt: skip
+    """List the runs in the store: variant, dataset/split, context size, seed, status, the
+    primary metric (mean over objects, at its card's scale), failures, duration and run id.
+
+    \b
+    Examples:
+      shapebench runs                              # every cell
+      shapebench runs -d synthetic --split novel -k 100
+      shapebench runs --status failed              # what to look at
+      shapebench runs --kind training              # trainings and how long they took
+      shapebench runs -m gauss --json | jq '.[].value'
+    """
+    from shapebench.listing import format_rows, list_runs, rows_json
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    rows = list_runs(settings, kind, method, dataset, split, status, context, limit)
+    if as_json:
+        click.echo(rows_json(rows))
+        return
+    if not rows:
+        click.echo(f"No {kind if kind != 'all' else ''} runs match in {settings.tracking_uri}.")
+        return
+    for line in format_rows(rows):
+        click.echo(line)
+    click.echo(f"{len(rows)} runs; details: shapebench show RUN_ID")
+
+
+@cli.command()
+@click.argument("run_id", metavar="RUN")
+@click.option("--all", "all_tags", is_flag=True, help="Also every tag and param.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@store_options
+def show(run_id, all_tags, as_json, profile, tracking_uri, cache_dir, workspace) -> None:
+    """Show one run: what it evaluated, its metrics, artifacts and links to it (and to its
+    training) in the MLflow UI. RUN is a run id or a unique prefix of one.
+
+    \b
+    Examples:
+      shapebench show 3f2a9c                       # a prefix from 'shapebench runs'
+      shapebench show 3f2a9c --all                 # with every tag and param
+      shapebench show 3f2a9c --json
+    """
+    from shapebench.listing import details_json, format_details, show_run
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    details = show_run(settings, run_id)
+    if as_json:
+        click.echo(details_json(details))
+        return
+    for line in format_details(details, all_tags):
+        click.echo(line)
 
 
 @cli.command()
@@ -737,41 +881,32 @@ def metrics() -> None:
 @click.option("--workers", default=1, show_default=True, help="Server worker processes.")
 @store_options
 def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None:
-    """Start the MLflow UI on the configured store and print its URL."""
-    import subprocess
+    """Start the MLflow UI on the configured store; print links to each experiment.
+
+    The links open an experiment's runs table with the primary metric as a column, and its
+    chart view, where each method variant is one line of the metric against context size.
+    Exits with status 2, before starting anything, when the port is taken.
+
+    \b
+    Examples:
+      shapebench ui                                # http://127.0.0.1:5000
+      shapebench ui --port 5001                    # when 5000 is taken
+      shapebench ui --workspace jobs/ws-0          # another workspace's store
+    """
+    from shapebench.ui import experiment_links, print_links, serve
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     if settings.is_remote:
+        from shapebench.tracking import check_reachable, open_client
+
+        check_reachable(settings.tracking_uri)
         click.echo(
             f"Runs are on the tracking server {settings.tracking_uri}: open it in a browser."
         )
+        print_links(experiment_links(open_client(settings.tracking_uri),
+                                     settings.tracking_uri), click.echo)  # fmt: skip
         return
-    settings.artifact_root.mkdir(parents=True, exist_ok=True)
-    cmd = [
-        sys.executable,
-        "-m",
-        "mlflow",
-        "ui",
-        "--backend-store-uri",
-        settings.tracking_uri,
-        "--default-artifact-root",
-        settings.artifact_root.as_uri(),
-        "--host",
-        host,
-        "--port",
-        str(port),
-        "--workers",
-        str(workers),
-    ]
-    # The background job runner serves MLflow's GenAI features, not run comparison; without it
-    # the UI starts in seconds with a fraction of the memory.
-    env = dict(os.environ)
-    env.setdefault("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")
-    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-    click.echo(f"MLflow UI: http://{shown}:{port}  (store {settings.tracking_uri}; Ctrl-C stops)")
-    click.echo("Runs are grouped in one experiment per dataset and split, e.g. synthetic-novel.")
-    with contextlib.suppress(KeyboardInterrupt):
-        subprocess.run(cmd, check=False, env=env)
+    serve(settings, host, port, workers, click.echo)
 
 
 @cli.command()

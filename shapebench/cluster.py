@@ -572,3 +572,53 @@ def print_status(statuses: list[CellStatus], plan: SweepPlan,
             echo(f"  {s.state}: {s.cell.name} (job {jid})")
     for error in plan.errors:
         echo(f"  cannot run: {error}")
+
+
+# ------------------------------------------------------------------------------------- prepare
+
+
+class PrepareJob:
+    """One array task of ``prepare --launcher slurm``: every ``count``-th object from ``index``."""
+
+    def __init__(self, req: Any, settings: Settings, index: int, count: int, jobs: int) -> None:
+        self.req = req
+        self.settings = settings
+        self.shard = (index, count)
+        self.jobs = jobs
+
+    def __call__(self) -> list[str]:
+        from shapebench.prepare import prepare_request
+
+        reports = prepare_request(self.req, self.settings, self.jobs, True, self.shard)
+        lines = []
+        for report in reports:
+            lines.append(report.summary())
+            lines += [f"  failed: {f.ref.id}: {f.reason}" for f in report.failures]
+        return lines
+
+    def checkpoint(self) -> Any:
+        """Pre-empted: requeued; the objects already cached are read back, not rebuilt."""
+        import submitit
+
+        return submitit.helpers.DelayedSubmission(self)
+
+
+def prepare_on_cluster(req: Any, settings: Settings, launcher: str, shards: int, jobs: int,
+                       overrides: dict[str, Any], echo: Callable[[str], None]) -> int:  # fmt: skip
+    """Prepare ``req`` as an array of ``shards`` jobs and wait for them; the number that failed."""
+    if shards < 1:
+        raise ShapebenchError(f"--shards must be at least 1, got {shards}")
+    cfg = launcher_config({}, overrides, launcher)
+    folder = settings.artifact_root.parent / "logs" / "submitit" / f"prepare-{req.dataset}"
+    folder.mkdir(parents=True, exist_ok=True)
+    executor = _executor(cfg, folder)
+    with executor.batch():
+        submitted = [executor.submit(PrepareJob(req, settings, i, shards, jobs))
+                     for i in range(shards)]  # fmt: skip
+    echo(f"{shards} prepare jobs from {submitted[0].job_id}; logs under {folder}")
+    failed = wait_for(submitted, echo)
+    for job in submitted:
+        if job.paths.result_pickle.exists() and not _job_error(job):
+            for line in job.results()[0]:
+                echo(f"[{job.job_id}] {line}")
+    return failed

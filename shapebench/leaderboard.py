@@ -68,6 +68,14 @@ class Board:
     frame: str = DEFAULT_FRAME
     protocol: str = ""
     left_out: list[str] = field(default_factory=list)
+    #: Per (variant, context, seed, object): the value under the failure rule (``scored``, at
+    #: the metric's own scale: multiply by ``scale``) and test-time ``seconds``.
+    scored: pd.DataFrame | None = None
+    scale: float = 1.0
+    #: Per variant: training and evaluation cost (:func:`shapebench.cost.row_costs`).
+    costs: pd.DataFrame | None = None
+    #: The table's cell runs (one row per run, tags as columns), for provenance.
+    runs: pd.DataFrame | None = None
 
 
 def _card_text(tag: str) -> str:
@@ -107,7 +115,9 @@ def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFra
             table["context"] = int(run["context_size"])
             table["seed"] = int(run["seed"])
             table["object"] = table["object"].astype(str)
-            cols = ["variant", "label", "context", "seed", "object", "status", "value"]
+            if "seconds" not in table:  # cost per object, for the cost columns
+                table["seconds"] = np.nan
+            cols = ["variant", "label", "context", "seed", "object", "status", "value", "seconds"]
             frames.append(table[cols])
     return pd.concat(frames, ignore_index=True)
 
@@ -286,11 +296,13 @@ def build_board(
         if not any(r.overrides.get("+normals") for r in rows)
         else "contexts carry points only, except rows marked +normals (points and normals)"
     )
+    from shapebench.cost import row_costs
+
     return Board(
         dataset, split, metric, card, reference, sorted(raw["context"].unique().tolist()),
         rows, raw, normalized, board_stats.significance(scored, higher), note,
         paper_table(dataset, split), exp_id, fingerprint, str(root or ""), frame, protocol,
-        left_out,
+        left_out, scored, scale, row_costs(tracker.client, runs, scored), runs,
     )  # fmt: skip
 
 
@@ -374,7 +386,22 @@ def _fmt_overrides(overrides: dict) -> str:
     return ", ".join(f"{k}={v}" if v is not True else k for k, v in sorted(overrides.items()))
 
 
-def render_markdown(board: Board, command: str, uri: str) -> str:
+def _cost_cells(board: Board, row: Row) -> list[str]:
+    """The row's test time per object and training cost, when the board has costs."""
+    from shapebench.cost import describe_seconds, describe_training
+
+    if board.costs is None:
+        return []
+    cost = board.costs[board.costs["variant"] == row.variant]
+    if cost.empty:
+        return ["–", "–"]
+    c = cost.iloc[0]
+    return [describe_seconds(c["seconds_per_object"]), describe_training(c)]
+
+
+def render_markdown(
+    board: Board, command: str, uri: str, figures: dict[str, Path] | None = None
+) -> str:
     ctxs = board.contexts
     card = MetricCard.from_tag(board.card) if "=" in board.card else None
     scale_txt = f"x{card.scale:g}" if card and card.scale != 1 else ""
@@ -404,6 +431,7 @@ def render_markdown(board: Board, command: str, uri: str) -> str:
         + [f"raw {c}" for c in ctxs]
         + [f"norm. {c}" for c in ctxs]
         + ["objects", "failed (per context)"]
+        + (["test time / object", "training"] if board.costs is not None else [])
     )
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in board.rows:
@@ -415,7 +443,8 @@ def render_markdown(board: Board, command: str, uri: str) -> str:
         )
         cells = [_cell(board, row, c) for c in ctxs] + [_norm_cell(board, row, c) for c in ctxs]
         name = f"{row.display} (`{row.label}`)"
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {n} | {fails} |")
+        cells += [str(n), fails] + _cost_cells(board, row)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     direction = "highest" if _higher_is_better(board.metric, board.card) else "lowest"
     lines += [
         "",
@@ -433,7 +462,16 @@ def render_markdown(board: Board, command: str, uri: str) -> str:
         if row.checkpoint:
             extra += f"; checkpoint `{row.checkpoint[:16]}`"
         lines.append(f"* `{row.label}`: {row.method}, {_fmt_overrides(row.overrides)}{extra}")
-    lines += _paper_section(board, header)
+    if board.costs is not None:
+        lines += [
+            "",
+            "**Cost**: test time is the method's wall time per successfully completed object "
+            "(mean over the row's cells); training is per training run (mean over the row's "
+            "seeds): device-hours = devices x wall time, with the device, epochs and final loss.",
+        ]
+    if figures:
+        lines += ["", *(f"![{name}]({path.name})" for name, path in figures.items())]
+    lines += _paper_section(board, header[: len(header) - (2 if board.costs is not None else 0)])
     if board.note:
         lines += ["", f"> {board.note}"]
     return "\n".join(lines) + "\n"
@@ -499,6 +537,10 @@ def tidy_csv(board: Board) -> pd.DataFrame:
         out = pd.concat([out, p[["source", "display", "context", "kind", "mean", "std",
                                  "method", "label", "variant"]]],
                         ignore_index=True)  # fmt: skip
+    if board.costs is not None:  # the row's cost, on each of its lines
+        from shapebench.cost import COST_COLUMNS
+
+        out = out.merge(board.costs, on="variant", how="left")
     out = out.assign(
         dataset=board.dataset,
         split=board.split,
@@ -513,6 +555,8 @@ def tidy_csv(board: Board) -> pd.DataFrame:
         "variant", "display", "context", "mean", "std", "mean_ok", "std_ok", "n", "n_ok",
         "failures", "best", "tied", "p_vs_best", "p_holm", "n_pairs", "reference", "card",
     ]  # fmt: skip
+    if board.costs is not None:
+        cols += COST_COLUMNS
     for c in cols:
         if c not in out:
             out[c] = np.nan
@@ -523,6 +567,14 @@ def board_path(out_dir: Path, dataset: str, split: str, frame: str) -> Path:
     """``<dataset>-<split>.md``, with the frame in the name unless it is the default."""
     suffix = "" if frame == DEFAULT_FRAME else f"-{frame}"
     return out_dir / f"{dataset}-{split}{suffix}.md"
+
+
+def splits_with_runs(tracker: Tracker, dataset: str) -> list[str]:
+    """The splits of ``dataset`` that have an experiment (the leaderboard's and the report's
+    default)."""
+    prefix = f"{dataset}-"
+    names = [e.name for e in tracker.client.search_experiments() if e.name.startswith(prefix)]
+    return sorted(n[len(prefix) :] for n in names if n[len(prefix) :] != "train")
 
 
 def build_leaderboards(
@@ -538,9 +590,7 @@ def build_leaderboards(
 ) -> list[Path]:
     tracker = Tracker(settings)
     if splits is None:
-        prefix = f"{dataset}-"
-        names = [e.name for e in tracker.client.search_experiments() if e.name.startswith(prefix)]
-        splits = sorted(n[len(prefix) :] for n in names if n[len(prefix) :] != "train")
+        splits = splits_with_runs(tracker, dataset)
     command = "shapebench " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     written = []
     for split in splits:
@@ -551,10 +601,16 @@ def build_leaderboards(
             continue
         out_dir.mkdir(parents=True, exist_ok=True)
         md = board_path(out_dir, dataset, split, frame)
-        md.write_text(render_markdown(board, command, settings.tracking_uri))
+        # Figures beside the table (PNG and SVG), linked from it, and all of it in MLflow.
+        from shapebench.figures import log_board_artifacts, write_board_figures
+
+        figures = write_board_figures(board, md)
+        svgs = {p.stem[len(md.stem) + 1 :]: p for p in figures if p.suffix == ".svg"}
+        md.write_text(render_markdown(board, command, settings.tracking_uri, svgs))
         csv = md.with_suffix(".csv")
         tidy_csv(board).to_csv(csv, index=False)
-        written += [md, csv]
+        log_board_artifacts(tracker, board, [md, csv, *figures])
+        written += [md, csv, *figures]
     if not written:
         raise ShapebenchError(
             f"no finished runs of dataset {dataset!r}"

@@ -74,14 +74,20 @@ def prepare(
     jobs: int = 1,
     quiet: bool = False,
     categories: Iterable[str] | None = None,
+    shard: tuple[int, int] | None = None,
 ) -> PrepareReport:
-    """Load every object of ``splits`` (optionally only of ``categories``) so it is cached.
+    """Load every object of ``splits`` (optionally only of ``categories``) so it is cached;
+    ``shard=(i, n)`` takes every n-th object from the i-th (one task of an array job).
 
     Failures (an :class:`ObjectLoadError`, or any other exception one object raises) are
     collected with their reasons, never raised; ``KeyboardInterrupt`` stops the workers and is
     re-raised (what finished is cached). ``jobs`` <= 1 runs in this process.
     """
     refs, report = _select(dataset, splits, categories)
+    if shard is not None:
+        index, count = shard
+        refs = refs[index::count]
+        report.total = len(refs)
     if jobs > 1 and len(refs) > 1:
         _check_picklable(dataset)
     cached = {r.id for r in refs if _is_cached(dataset, r)}
@@ -274,4 +280,41 @@ def _is_cached(dataset: Dataset, ref: ObjectRef) -> bool:
 def _progress(total: int, desc: str, quiet: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="obj", disable=quiet, file=sys.stderr)
+    from shapebench.runner import _is_terminal
+
+    # Drawn on a terminal only: in a log file its carriage returns make one endless line.
+    return tqdm(total=total, desc=desc, unit="obj", disable=quiet or not _is_terminal(),
+                file=sys.stderr)  # fmt: skip
+
+
+@dataclass
+class PrepareRequest:
+    """What ``shapebench prepare`` was asked for: picklable, so that a cluster job can run it."""
+
+    dataset: str
+    splits: list[str] | None
+    categories: list[str] | None
+    methods: list[str]
+    method_opts: dict
+    dataset_opts: dict
+    data_root: str | None
+
+
+def prepare_request(req: PrepareRequest, settings, jobs: int = 1, quiet: bool = False,
+                    shard: tuple[int, int] | None = None) -> list[PrepareReport]:  # fmt: skip
+    """The evaluation splits, then the train split with what ``req.methods`` need."""
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset, resolve_method
+
+    reg = get_registry()
+    ds = resolve_dataset(reg, req.dataset, settings, req.data_root, req.dataset_opts)
+    splits = req.splits or list(ds.eval_splits)
+    reports = [prepare(ds, splits, jobs=jobs, quiet=quiet, categories=req.categories,
+                       shard=shard)]  # fmt: skip
+    need: frozenset[Supervision] = frozenset()
+    for name in req.methods:  # what this configuration needs (OccNet's depends on its recipe)
+        instance = resolve_method(reg, name, settings, req.method_opts).instantiate()
+        need |= instance.needs() if hasattr(instance, "needs") else instance.supervision
+    if req.methods:
+        reports.append(prepare(ds, [TRAIN], need, jobs, quiet, req.categories, shard))
+    return reports

@@ -101,12 +101,20 @@ def print_plugins() -> None:
         click.secho(f"conflict: {kind} {name!r} is provided by {owners}", fg="red")
 
 
-def describe_kind(kind: str) -> None:
+def describe_kind(kind: str, profile: str | None = None) -> None:
+    """Describe every installed ``kind``; with ``profile``, each option's value in effect (the
+    config file and the profile applied) beside its default."""
     from shapebench.errors import ShapebenchError
     from shapebench.options import describe
     from shapebench.registry import get_registry
 
     reg = get_registry()
+    profile_data = None
+    if profile and kind != "metric":
+        from shapebench.config import load_profile
+
+        profile_data = load_profile(profile)  # an unknown profile fails here, naming them all
+        click.echo(f"Options in effect with profile {profile!r} (override with -O/-D):\n")
     names = reg.names(kind)
     if not names:
         click.echo(f"No {kind}s are installed.")
@@ -136,9 +144,27 @@ def describe_kind(kind: str) -> None:
                 f"{cls().card(30000).describe()}"
             )
         if kind != "metric":
+            effect = _in_effect(kind, name, cls, profile_data)
             for opt in describe(cls.Options):
-                click.echo(f"    {opt.name} ({opt.type}, default {opt.default!r}): {opt.help}")
+                value = effect.get(opt.name, opt.default)
+                shown = (f"{value!r}, default {opt.default!r}" if value != opt.default
+                         else f"default {opt.default!r}")  # fmt: skip
+                if profile_data is not None and value == opt.default:
+                    shown = f"{value!r}"
+                click.echo(f"    {opt.name} ({opt.type}, {shown}): {opt.help}")
         click.echo("")
+
+
+def _in_effect(kind: str, name: str, cls: type, profile: dict | None) -> dict:
+    """The option values a run gets from the config file and ``profile`` ({} without one)."""
+    if profile is None:
+        return {}
+    from dataclasses import asdict
+
+    from shapebench.config import plugin_overrides
+    from shapebench.options import build
+
+    return asdict(build(cls.Options, plugin_overrides(kind, name, profile), f"{kind} {name!r}"))
 
 
 def _echo_categories(cls: type) -> None:

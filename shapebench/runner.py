@@ -36,6 +36,9 @@ from shapebench.tracking import PARENT_KIND, Tracker, experiment_name, flatten
 from shapebench.types import Completion, Context, ObjectData, ObjectRef
 from shapebench.variant import Variant
 
+#: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
+RUN_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+              "#7f7f7f", "#bcbd22", "#17becf")  # fmt: skip
 EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.pictures.PICTURES_PER_CELL)
 TOP_REASONS = 3  # distinct failure reasons printed per cell
 #: Per-object column prefix holding the error of a metric that raised on that object.
@@ -211,7 +214,17 @@ def _pm_text(metrics: dict[str, float], metric: str, scale: float) -> str:
 def _progress(total: int, desc: str, quiet: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="obj", disable=quiet, leave=False, file=sys.stderr)
+    # A bar redraws itself with carriage returns: in a log file or a pipe that is one endless
+    # line, so bars are drawn on a terminal only (the summaries say what was done).
+    return tqdm(total=total, desc=desc, unit="obj", disable=quiet or not _is_terminal(),
+                leave=False, file=sys.stderr)  # fmt: skip
+
+
+def _is_terminal() -> bool:
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):  # replaced or closed stderr
+        return False
 
 
 def check_context_sizes(
@@ -492,6 +505,7 @@ class Runner:
                 "variant.key": variant.key if variant else "",
                 "variant.label": self._label(plan),
                 "protocol.frame": plan.protocol.frame,
+                "mlflow.runColor": self._variant_color(exp_id, self._label(plan)),
             },
         )
         self._log_dataset(plan, split, parent)
@@ -504,6 +518,21 @@ class Runner:
             [f"{metric}.mean", f"{metric}.std", "failures", "seconds_per_object"],
         )
         return parent, lock
+
+    def _variant_color(self, exp_id: str, label: str) -> str:
+        """The chart color of a variant's parent runs: the one its earlier parents have, else
+        the next of a palette. MLflow's own choice hashes the run id, and two variants of one
+        chart often got the same color."""
+        parents = self.tracker.client.search_runs(
+            [exp_id], f"tags.`shapebench.kind` = '{PARENT_KIND}'", max_results=1000)  # fmt: skip
+        labels: list[str] = []
+        for run in sorted(parents, key=lambda r: r.info.start_time):
+            tags = run.data.tags
+            if tags.get("variant.label") == label and tags.get("mlflow.runColor"):
+                return tags["mlflow.runColor"]
+            if tags.get("variant.label") and tags["variant.label"] not in labels:
+                labels.append(tags["variant.label"])
+        return RUN_COLORS[len(labels) % len(RUN_COLORS)]
 
     def _run_name(self, plan: RunPlan, what: str) -> str:
         """A run's name: the variant's label (``gauss[sigma=0.05]``) and what the run holds; a
@@ -521,8 +550,7 @@ class Runner:
         refs = ds.objects(split)
         self.tracker.log_dataset(
             run_id, f"{ds.name}/{split}", ds.fingerprint(),
-            {"dataset": ds.name, "version": ds.version, "data_root": str(ds.data_root or ""),
-             "options": ds.config().get("options", {}) if isinstance(ds.config(), dict) else {}},
+            {"dataset": ds.name, "version": ds.version, "data_root": str(ds.data_root or "")},
             {"objects": len(refs), "categories": len({r.category for r in refs})},
             split,
         )  # fmt: skip
@@ -590,7 +618,12 @@ class Runner:
         link = self._training_link(plan)
         if link:
             lines += ["", f"Checkpoint: {link}."]
-        self.tracker.client.set_tag(parent, "mlflow.note.content", "\n".join(lines))
+        # The cards of the cells' metrics, so the parent's values are read at the right scale.
+        from shapebench.records import CARD_PREFIX
+
+        cards = {CARD_PREFIX + m: card for c in cells for m, card in c.cards.items()}
+        for key, value in {**cards, "mlflow.note.content": "\n".join(lines)}.items():
+            self.tracker.client.set_tag(parent, key, value)
 
     def _run_cell(
         self, plan, method, split, refs, cache, store, exp_id, parent, seed, size, cfg, key
@@ -608,6 +641,7 @@ class Runner:
 
             pictured = set(picture_objects([r.id for r in refs]))
             truths: dict[str, np.ndarray] = {}
+            spare: list = []
             label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
             chunk = max(1, int(getattr(method, "batch_size", 1)))
             with _progress(len(refs), label, plan.quiet) as bar:
@@ -638,6 +672,8 @@ class Runner:
                         if completion is not None and ctx.ref.id in pictured:
                             examples.append((ctx, completion))
                             truths[ctx.ref.id] = data.gt_points
+                        elif completion is not None and len(spare) < EXAMPLE_PLYS:
+                            spare.append((ctx, completion))  # .ply only, if pictured ones fail
                         bar.update()
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
@@ -649,7 +685,8 @@ class Runner:
             tr.log_metrics(run_id, summary, step=size)
             tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
             self._log_artifacts(run_id, table, contexts, examples, truths,
-                                f"{self._label(plan)} k={size}")  # fmt: skip
+                                f"{self._label(plan)} k={size}",
+                                spare[: max(EXAMPLE_PLYS - len(examples), 0)])  # fmt: skip
         except BaseException:
             tr.end(run_id, "KILLED")
             raise
@@ -721,10 +758,12 @@ class Runner:
             variant_overrides=dict(variant.overrides) if variant else {},
         )  # fmt: skip
 
-    def _log_artifacts(self, run_id, table, contexts, examples, truths=None, title="") -> None:
+    def _log_artifacts(self, run_id, table, contexts, examples, truths=None, title="",
+                       spare=()) -> None:  # fmt: skip
         """The per-object table, the contexts, and for the pictured objects their completed
         clouds (``completions/*.ply``) and pictures (``pictures/<object>.png``, drawn from the
-        arrays kept beside it as ``.npz``: context, completion, ground truth, spread)."""
+        arrays kept beside it as ``.npz``: context, completion, ground truth, spread); when
+        pictured objects failed, ``spare`` successes fill the ``.ply`` examples up."""
         import trimesh
 
         from shapebench.pictures import file_stem, picture_arrays, picture_png
@@ -745,20 +784,25 @@ class Runner:
                 pic_dir = tmpdir / "pictures"
                 pic_dir.mkdir()
                 start = time.perf_counter()
-                for ctx, completion in examples:
-                    obj = ctx.ref.id
-                    arrays = picture_arrays(ctx.points, completion.points,
-                                            (truths or {}).get(obj),
-                                            completion.cache.get("spread"))  # fmt: skip
-                    np.savez_compressed(pic_dir / f"{file_stem(obj)}.npz", **arrays)
-                    png = picture_png(arrays, f"{title}: {obj}" if title else obj)
-                    (pic_dir / f"{file_stem(obj)}.png").write_bytes(png)
+                try:
+                    for ctx, completion in examples:
+                        obj = ctx.ref.id
+                        arrays = picture_arrays(ctx.points, completion.points,
+                                                (truths or {}).get(obj),
+                                                completion.cache.get("spread"))  # fmt: skip
+                        np.savez_compressed(pic_dir / f"{file_stem(obj)}.npz", **arrays)
+                        png = picture_png(arrays, f"{title}: {obj}" if title else obj)
+                        (pic_dir / f"{file_stem(obj)}.png").write_bytes(png)
+                except Exception as exc:  # a picture is a view of the results, not one of them
+                    self.echo(f"  warning: could not draw the pictures of this cell "
+                              f"({type(exc).__name__}: {exc})")  # fmt: skip
                 self.tracker.client.log_artifacts(run_id, str(pic_dir), "pictures")
                 self.tracker.client.log_metric(run_id, "pictures_seconds",
                                                time.perf_counter() - start)  # fmt: skip
+            if examples or spare:
                 ex_dir = tmpdir / "completions"
                 ex_dir.mkdir()
-                for ctx, completion in examples:
+                for ctx, completion in [*examples, *spare]:
                     obj = ctx.ref.id
                     stem = obj.replace("/", "__")
                     trimesh.PointCloud(completion.points).export(ex_dir / f"{stem}.ply")

@@ -33,7 +33,7 @@ from shapebench.errors import ShapebenchError
 from shapebench.hashing import stable_hash
 from shapebench.method import TrainerOptions, TrainingContext
 from shapebench.resolve import ResolvedMethod
-from shapebench.tracking import TRAINING_KIND, Tracker, flatten
+from shapebench.tracking import TRAINING_KIND, Tracker, flatten, training_experiment_name
 
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 #: The pid of the process that started this training and waits for it (see watch_parent).
@@ -218,7 +218,7 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
     tracker = None
     if _global_rank() == 0 and not run_id:
         tracker = Tracker(settings)
-        exp = tracker.experiment_id(f"{dataset.name}-train")
+        exp = tracker.experiment_id(training_experiment_name(dataset.name))
         # We hold the key's lock: a RUNNING training of this key was left by a killed process.
         tracker.abandon_stale(exp, key, tag="checkpoint_key")
         tags = {
@@ -229,7 +229,10 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
         }
         if (workdir / LAST).exists():
             tags["resumed"] = "true"
-        run_id = tracker.start_run(exp, f"train {method.name} on {dataset.name}", tags)
+        label = method.name + (f" epochs={method.options.epochs}"
+                               if hasattr(method.options, "epochs") else "")  # fmt: skip
+        run_id = tracker.start_run(exp, f"train {label} on {dataset.name} seed={trainer.seed}",
+                                   tags)  # fmt: skip
         tracker.log_params(
             run_id,
             flatten(
@@ -305,6 +308,10 @@ def ensure_checkpoint(
         cmd += ["--data-root", str(data_root)]
     if quiet:
         cmd.append("--quiet")
+    # Why a (possibly long) training starts now, before its own output.
+    resume = " (resuming from its last checkpoint)" if (workdir / "last.ckpt").exists() else ""
+    print(f"training {method.name} on {dataset.name}: no checkpoint for key {key} in "
+          f"{workdir.parent}{resume}", file=sys.stderr, flush=True)  # fmt: skip
     env = {k: v for k, v in os.environ.items() if k != RUN_ID_ENV}
     # `python -m` would put the working directory first on sys.path: a checkout of shapebench in
     # it would then train with other code than this process evaluates with (and under another

@@ -9,6 +9,7 @@ slurmd with their own ports, state and logs, and every client finds the cluster 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -60,10 +61,8 @@ class SlurmCluster:
         for pidfile in ("slurmd.pid", "slurmctld.pid", "munge/munged.pid"):
             path = self.root / pidfile
             if path.exists():
-                try:
+                with contextlib.suppress(ValueError, OSError):  # already gone
                     os.kill(int(path.read_text().strip()), 15)
-                except (ValueError, OSError):
-                    pass
 
 
 def start_cluster(root: Path, cpus: int | None = None) -> SlurmCluster:

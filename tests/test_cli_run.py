@@ -117,7 +117,7 @@ def test_trainable_method_trains_once_in_its_own_process(with_example):
     res = sb(*args)
     assert res.returncode == 0, res.stderr
     client = sb.client()
-    train_exp = client.get_experiment_by_name("synthetic-train")
+    train_exp = client.get_experiment_by_name("training/synthetic")
     trainings = client.search_runs([train_exp.experiment_id])
     assert len(trainings) == 1 and trainings[0].info.status == "FINISHED"
     assert trainings[0].data.metrics["train_objects"] == 11  # one per trained category

@@ -18,7 +18,7 @@ SURFACE = ["-O", "surface_points=64"]
 
 def _training_runs(sb):
     client = sb.client()
-    exp = client.get_experiment_by_name("synthetic-train")
+    exp = client.get_experiment_by_name("training/synthetic")
     return client.search_runs([exp.experiment_id]) if exp else []
 
 

@@ -65,7 +65,7 @@ def saved_epochs(sb) -> int:
 
 def training_runs(sb, status: str | None = None):
     client = sb.client()
-    exp = client.get_experiment_by_name("synthetic-train")
+    exp = client.get_experiment_by_name("training/synthetic")
     runs = client.search_runs([exp.experiment_id]) if exp else []
     return [r for r in runs if status is None or r.info.status == status]
 

@@ -45,7 +45,7 @@ def test_max_epochs_is_part_of_the_checkpoint_key_and_the_row(with_example):
     assert plain.returncode == 0, plain.stderr
     assert "cached" not in plain.stdout  # the 3-epoch cells are not this configuration
     client = sb.client()
-    train_exp = client.get_experiment_by_name("synthetic-train")
+    train_exp = client.get_experiment_by_name("training/synthetic")
     trainings = client.search_runs([train_exp.experiment_id])
     assert len(trainings) == 2
     assert len({t.data.tags["checkpoint_key"] for t in trainings}) == 2

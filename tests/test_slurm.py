@@ -27,8 +27,9 @@ def cluster(tmp_path_factory):
     c.stop()
 
 
-def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(shapebench, cluster,
-                                                                      tmp_path, monkeypatch):  # fmt: skip
+def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(
+    shapebench, cluster, tmp_path, monkeypatch
+):
     monkeypatch.setenv("SLURM_CONF", str(cluster.conf))
     sb = shapebench
     body = SWEEP.replace("epochs: 60", "epochs: 4")

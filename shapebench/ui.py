@@ -1,0 +1,127 @@
+"""``shapebench ui``: the MLflow UI on the workspace's store, with direct links.
+
+The port is checked before anything is printed: MLflow's server would otherwise print its
+banner, fail inside uvicorn with a traceback, and leave the caller with a URL that shows
+someone else's server. The links open each experiment's runs page in shapebench's view (the
+primary metric as a column, see :func:`shapebench.tracking.view_state`), and the chart view where
+each method variant is one line of Chamfer distance against context size.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import socket
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from shapebench.config import Settings
+from shapebench.errors import ShapebenchError
+from shapebench.tracking import VIEW_KEY, VIEW_TAG_PREFIX, experiment_url
+
+
+def check_port(host: str, port: int) -> None:
+    """Raise a :class:`ShapebenchError` naming the fix when ``host:port`` cannot be bound."""
+    if not 0 < port < 65536:
+        raise ShapebenchError(f"--port {port} is not a TCP port", "use a number from 1 to 65535")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise ShapebenchError(f"--host {host!r} is not an address of this machine ({exc})",
+                              "use 127.0.0.1, or 0.0.0.0 for every interface") from exc  # fmt: skip
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        # The server binds with SO_REUSEADDR too: a port in TIME_WAIT is free for both.
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind(address)
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                raise ShapebenchError(
+                    f"port {port} on {host} is already in use (another MLflow UI, or another "
+                    "program, is listening there)",
+                    f"pick a free one: shapebench ui --port {port + 1}",
+                ) from exc
+            raise ShapebenchError(f"cannot listen on {host}:{port} ({exc.strerror})",
+                                  "use another --host or --port") from exc  # fmt: skip
+
+
+@dataclass
+class ExperimentLink:
+    name: str
+    experiment_id: str
+    runs: int
+    url: str
+    #: The chart view (one line per variant), for experiments shapebench set a view on.
+    charts: str = ""
+
+
+def experiment_links(client: object, base: str) -> list[ExperimentLink]:
+    """A link per active experiment of the store, evaluations first, then trainings."""
+    links = []
+    for exp in client.search_experiments():
+        has_view = VIEW_TAG_PREFIX + VIEW_KEY in exp.tags
+        runs = len(client.search_runs([exp.experiment_id], max_results=1000))
+        links.append(ExperimentLink(
+            exp.name, exp.experiment_id, runs,
+            experiment_url(base, exp.experiment_id, view=has_view),
+            experiment_url(base, exp.experiment_id, charts=True) if has_view else "",
+        ))  # fmt: skip
+    return sorted(links, key=lambda link: (not link.charts, link.name))
+
+
+def shown_host(host: str) -> str:
+    """The host to put in a URL: a wildcard address is reached on the loopback."""
+    if host in ("0.0.0.0", "::", ""):
+        return "127.0.0.1"
+    return f"[{host}]" if ":" in host else host
+
+
+def print_links(links: list[ExperimentLink], echo: Callable[[str], None]) -> None:
+    if not links:
+        echo("No experiments yet: run one (shapebench run -m gauss -d synthetic) and reload.")
+        return
+    echo("Experiments (runs table; the charts link draws the primary metric against context "
+         "size, one line per method variant):")  # fmt: skip
+    for link in links:
+        echo(f"  {link.name} ({link.runs} runs): {link.url}")
+        if link.charts:
+            echo(f"  {'':<{len(link.name)}}   charts: {link.charts}")
+
+
+def serve(settings: Settings, host: str, port: int, workers: int,
+          echo: Callable[[str], None]) -> int:  # fmt: skip
+    """Start the MLflow UI on the embedded store and wait for it; return its exit status."""
+    from shapebench.tracking import open_client
+
+    check_port(host, port)
+    settings.artifact_root.mkdir(parents=True, exist_ok=True)
+    # Opening the store creates (or upgrades) its schema under shapebench's lock, and retires
+    # MLflow's empty "Default" experiment, before the server reads it.
+    client = open_client(settings.tracking_uri)
+    base = f"http://{shown_host(host)}:{port}"
+    echo(f"MLflow UI: {base}  (store {settings.tracking_uri}; Ctrl-C stops)")
+    print_links(experiment_links(client, base), echo)
+    cmd = [
+        sys.executable, "-m", "mlflow", "ui",
+        "--backend-store-uri", settings.tracking_uri,
+        "--default-artifact-root", settings.artifact_root.as_uri(),
+        "--host", host, "--port", str(port), "--workers", str(workers),
+    ]  # fmt: skip
+    # The background job runner serves MLflow's GenAI features, not run comparison; without it
+    # the UI starts in seconds with a fraction of the memory.
+    env = dict(os.environ)
+    env.setdefault("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")
+    sys.stdout.flush()  # the links first, even into a pipe, then the server's own output
+    with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C (or SIGTERM) is how it should stop
+        proc = subprocess.run(cmd, check=False, env=env)
+        # A server that returns by itself failed, even with status 0: mlflow exits 0 when
+        # uvicorn cannot bind (a program that took the port after our check).
+        raise ShapebenchError(
+            f"the MLflow server on {host}:{port} stopped by itself (status {proc.returncode})",
+            "its own messages above say why; a port taken meanwhile: try another --port",
+        )
+    return 0

@@ -1,0 +1,94 @@
+"""The cluster launcher's pieces that need no cluster: its config, the tracking rule, the ranks
+of a training job, and the plan of what a sweep still has to do."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import TINY, TINY_CONTEXTS
+
+from shapebench.cluster import (
+    LauncherConfig,
+    _ranks,
+    check_tracking,
+    launcher_config,
+    read_manifest,
+)
+from shapebench.config import make_settings
+from shapebench.errors import ConfigError, ShapebenchError
+from shapebench.sweep import load_sweep
+
+
+def test_launcher_block_then_command_line_then_per_method_overrides():
+    block = {"name": "slurm", "partition": "gpu", "time": 240, "gpus_per_node": 1,
+             "methods": {"gauss": {"gpus_per_node": 0, "time": 10}}}  # fmt: skip
+    cfg = launcher_config(block, {"time": "30", "extra": {"mail-type": "END"}}, None)
+    assert (cfg.name, cfg.partition, cfg.time, cfg.gpus_per_node) == ("slurm", "gpu", 30, 1)
+    gauss = cfg.for_method("gauss")
+    assert (gauss.gpus_per_node, gauss.time, gauss.partition) == (0, 10, "gpu")
+    assert cfg.for_method("igr") == cfg
+    assert launcher_config(block, {}, "submitit-local").name == "submitit-local"
+
+
+@pytest.mark.parametrize(
+    "block, message",
+    [
+        ({"partiton": "gpu"}, "unknown launcher keys ['partiton']"),
+        ({"time": "two hours"}, "time must be a number"),
+        ({"tracking": "nfs"}, "'server' or 'per-job'"),
+        ({"cells_per_job": 0}, "at least 1"),
+        ({"methods": {"igr": {"gpu": 1}}}, "launcher.methods.igr"),
+    ],
+)
+def test_bad_launcher_keys_are_named(block, message):
+    with pytest.raises(ConfigError) as err:
+        launcher_config(block, {}, None).for_method("igr")
+    assert message in str(err.value.message)
+
+
+def test_a_slurm_sweep_refuses_one_sqlite_store_for_every_job(tmp_path):
+    settings = make_settings(workspace=tmp_path)
+    with pytest.raises(ShapebenchError) as err:
+        check_tracking(LauncherConfig(name="slurm"), settings)
+    assert "SQLite" in err.value.message and "per-job" in err.value.hint
+    check_tracking(LauncherConfig(name="slurm", tracking="per-job"), settings)
+    check_tracking(LauncherConfig(name="submitit-local"), settings)  # one machine: fine
+    remote = make_settings(tracking_uri="http://127.0.0.1:5000", workspace=tmp_path)
+    check_tracking(LauncherConfig(name="slurm"), remote)
+
+
+def test_a_training_job_has_one_task_per_lightning_rank():
+    assert _ranks({}) == (1, 1)
+    assert _ranks({"devices": "4", "num_nodes": 2}) == (4, 2)
+    assert _ranks({"devices": "0,1"}) == (2, 1)
+
+
+def test_sweep_file_launcher_block_and_manifest_tolerate_a_cut_line(tmp_path):
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text("methods: [gauss]\ndatasets: [synthetic]\nlauncher: slurm\n")
+    assert load_sweep(sweep).launcher == {"name": "slurm"}
+    sweep.write_text("methods: [gauss]\ndatasets: [synthetic]\nlauncher: [slurm]\n")
+    with pytest.raises(ConfigError, match="launcher"):
+        load_sweep(sweep)
+    manifest = tmp_path / "m.jsonl"
+    manifest.write_text('{"job_id": "1", "keys": ["a"]}\n{"job_id": "2", "ke')
+    assert [j["job_id"] for j in read_manifest(manifest)] == ["1"]
+
+
+def test_plan_lists_missing_cells_then_nothing_once_the_sweep_ran(shapebench, tmp_path):
+    sb = shapebench
+    options = ", ".join(o.replace("=", ": ") for o in TINY[1::2])  # the k=v of "-D k=v"
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(
+        f"name: plan\nmethods: [gauss, {{name: gauss, options: {{sigma: 0.05}}}}]\n"
+        f"datasets: [{{name: synthetic, options: {{{options}}}}}]\nsplits: [novel]\n"
+        f"contexts: [{TINY_CONTEXTS[1]}]\n"
+    )
+    res = sb("sweep", str(sweep), "--status")
+    assert res.returncode == 0, res.stderr
+    assert "4 cells: 4 not submitted" in res.stdout
+    res = sb("sweep", str(sweep), "-q")
+    assert res.returncode == 0, res.stderr
+    res = sb("sweep", str(sweep), "--status")
+    assert "4 cells: 4 finished" in res.stdout
+    res = sb("sweep", str(sweep), "--launcher", "submitit-local")
+    assert res.returncode == 0 and "nothing to submit" in res.stdout, res.stderr
