@@ -181,8 +181,10 @@ def job_id() -> str:
     """This job's id: SLURM's (``<array>_<task>`` in an array), submitit's local one, or the pid."""
     if os.environ.get("SLURM_ARRAY_JOB_ID"):
         return f"{os.environ['SLURM_ARRAY_JOB_ID']}_{os.environ.get('SLURM_ARRAY_TASK_ID', 0)}"
-    return os.environ.get("SLURM_JOB_ID") or os.environ.get("SUBMITIT_LOCAL_JOB_ID") or str(
-        os.getpid()
+    return (
+        os.environ.get("SLURM_JOB_ID")
+        or os.environ.get("SUBMITIT_LOCAL_JOB_ID")
+        or str(os.getpid())
     )
 
 
@@ -273,7 +275,8 @@ def requeue_after(exc: BaseException) -> None:
     rank = os.environ.get("SLURM_PROCID", "0")
     job = os.environ.get("SLURM_JOB_ID")
     if job and rank == "0":
-        print(f"[shapebench] pre-empted ({exc}); requeueing job {job}", file=sys.stderr,
+        why = getattr(exc, "message", str(exc))
+        print(f"[shapebench] pre-empted ({why}); requeueing job {job}", file=sys.stderr,
               flush=True)  # fmt: skip
         subprocess.run(["scontrol", "requeue", job], check=False, timeout=60)
     raise SystemExit(-1)

@@ -541,7 +541,7 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     )  # fmt: skip
     state = _resume_state(last, ctx.workdir.name)
     resumed = _epochs_of(state) if state is not None else None
-    if state is not None and not ctx.quiet and trainer.is_global_zero:
+    if state is not None and trainer.is_global_zero:  # one line, worth it even when quiet
         print(f"resuming from {last} ({_describe(state)})", file=sys.stderr)
     start = time.perf_counter()
     try:

@@ -42,7 +42,8 @@ class RunRow:
     context_size: int | None
     seed: int | None
     metric: str
-    #: The primary metric's mean over objects, at its card's display scale (x1000 for Chamfer).
+    #: The primary metric's mean over objects, as logged (the parent's: at its largest context
+    #: size); ``value * scale`` is what tables show (``scale`` is the card's, x1000 for Chamfer).
     value: float | None
     scale: float
     failures: int | None

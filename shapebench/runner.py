@@ -204,6 +204,14 @@ class ObjectCache:
         return item
 
 
+def _note(lines: list[str], limit: int = 7900) -> str:
+    """A run description from markdown lines, within MLflow's 8000 characters for a tag."""
+    text = "\n".join(lines)
+    if len(text) <= limit:
+        return text
+    return text[: text.rfind("\n", 0, limit - 80)] + "\n\n(truncated: `shapebench runs` lists all)"
+
+
 def _pm_text(metrics: dict[str, float], metric: str, scale: float) -> str:
     mean = metrics.get(f"{metric}.mean")
     if mean is None:
@@ -586,7 +594,7 @@ class Runner:
         link = self._training_link(plan)
         if link:
             lines += ["", f"Checkpoint: {link}."]
-        self.tracker.client.set_tag(result.run_id, "mlflow.note.content", "\n".join(lines))
+        self.tracker.client.set_tag(result.run_id, "mlflow.note.content", _note(lines))
         self._log_dataset(plan, split, result.run_id)
 
     def _finish_parent(self, plan: RunPlan, parent: str, split: str,
@@ -622,7 +630,7 @@ class Runner:
         from shapebench.records import CARD_PREFIX
 
         cards = {CARD_PREFIX + m: card for c in cells for m, card in c.cards.items()}
-        for key, value in {**cards, "mlflow.note.content": "\n".join(lines)}.items():
+        for key, value in {**cards, "mlflow.note.content": _note(lines)}.items():
             self.tracker.client.set_tag(parent, key, value)
 
     def _run_cell(

@@ -22,6 +22,7 @@ import json
 import os
 import urllib.error
 import urllib.request
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -127,7 +128,7 @@ class Tracker:
                 raise
             return exp.experiment_id
 
-    def describe_experiment(self, exp_id: str, note: str, metrics: list[str] = ()) -> None:
+    def describe_experiment(self, exp_id: str, note: str, metrics: Sequence[str] = ()) -> None:
         """The experiment's description (``mlflow.note.content``, shown above its runs) and,
         given the metrics of its cells, shapebench's view of it: the runs table with those
         metrics as columns (see :func:`view_state`), opened by :func:`experiment_url`."""

@@ -219,6 +219,12 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
     if _global_rank() == 0 and not run_id:
         tracker = Tracker(settings)
         exp = tracker.experiment_id(training_experiment_name(dataset.name))
+        tracker.describe_experiment(
+            exp,
+            f"shapebench trainings on {dataset.name}: one run per checkpoint key (method "
+            "options and code, training data, epochs, precision, devices, seed), with its loss "
+            "curves; the evaluations that use a checkpoint link to its run in their description.",
+        )
         # We hold the key's lock: a RUNNING training of this key was left by a killed process.
         tracker.abandon_stale(exp, key, tag="checkpoint_key")
         tags = {

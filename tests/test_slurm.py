@@ -7,6 +7,7 @@ CI installs slurm-wlm and munge (scripts/ci-system-packages.sh); run just this f
 from __future__ import annotations
 
 from collections import Counter
+from pathlib import Path
 
 import pytest
 from slurm_cluster import missing_requirements, start_cluster
@@ -63,3 +64,55 @@ def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(
     assert res.returncode == 0 and "8 cells: 8 finished" in res.stdout, res.stderr
     res = sb("sweep", str(sweep), *DDP)  # resubmitting a finished sweep submits nothing
     assert res.returncode == 0 and "nothing to submit" in res.stdout, res.stderr
+
+
+def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
+    shapebench, cluster, tmp_path, monkeypatch
+):
+    """SLURM's pre-emption warning (SIGUSR1, as `--signal=USR1@90` sends it): the training
+    writes its checkpoint, its job is requeued by rank 0, and the requeued job resumes."""
+    import json
+    import time
+
+    from test_interruptions import wait_for
+
+    monkeypatch.setenv("SLURM_CONF", str(cluster.conf))
+    sb = shapebench
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(
+        SWEEP.replace("epochs: 60", "epochs: 400")
+        .replace("batch_shapes: 4", "batch_shapes: 1")
+        .replace("  - gauss\n", "")
+        .replace("[trained, novel]", "[novel]")
+        .replace("[50, 100]", "[50]")
+        + "launcher: {name: slurm, time: 20, tracking: per-job}\n"
+    )
+    res = sb("sweep", str(sweep))
+    assert res.returncode == 0 and "1 trainings to submit" in res.stdout, res.stderr
+    manifest = [json.loads(line) for line in
+                (sb.workspace / "sweeps" / "soak.jsonl").read_text().splitlines()]  # fmt: skip
+    job = next(j for j in manifest if j["kind"] == "training")
+    jid, log = job["job_id"], job["stderr"]
+    ckpts = sb.workspace / "checkpoints"
+    wait_for(lambda: list(ckpts.glob("*/*/last.ckpt")), timeout=300, what="a first checkpoint")
+    cluster.run("scancel", "--signal=USR1", jid)
+
+    def requeued() -> bool:
+        out = cluster.run("squeue", "-h", "-j", jid, "-o", "%T %r", check=False)
+        return "requeueing job" in Path(log).read_text() and out.startswith("PENDING")
+
+    wait_for(requeued, timeout=120, what="the training job requeued")
+    # SLURM holds a requeued job back for a while (reason BeginTime): release it now.
+    cluster.run("scontrol", "update", f"JobId={jid}", "StartTime=now")
+    deadline = time.monotonic() + 600
+    while "1 cells: 1 finished" not in (status := sb("sweep", str(sweep), "--status").stdout):
+        assert time.monotonic() < deadline, status + cluster.logs()
+        time.sleep(5)
+    text = Path(log).read_text()
+    assert "SIGUSR1: stopping after the current optimiser step" in text
+    assert "resuming from" in text and "last.ckpt" in text
+    summary = json.loads(next(ckpts.glob("*/*/summary.json")).read_text())
+    assert summary["resumed_from_epoch"] >= 1
+    training = [r for r in all_runs(sb, "FINISHED")
+                if r.data.tags.get("shapebench.kind") == "training"]  # fmt: skip
+    assert len(training) == 1 and training[0].data.tags.get("resumed") == "true"
