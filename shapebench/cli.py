@@ -462,6 +462,9 @@ def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, wo
             click.echo(f"  hint: {exc.hint}", err=True)
         click.echo("  continuing with the rest of the sweep", err=True)
 
+    from shapebench.sweep import SweepProgress, sweep_size
+
+    progress = SweepProgress(sweep_size(spec, settings))
     outcomes = []
     for outcome in run_sweep(
         spec,
@@ -473,6 +476,7 @@ def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, wo
         offset=worker,
     ):
         print_summary(outcome, settings)
+        click.secho(progress.update(outcome), dim=True)
         outcomes.append(outcome)
     _exit_if_all_failed(outcomes)
 

@@ -32,6 +32,7 @@ from shapebench.dataset import Dataset, ObjectLoadError
 from shapebench.errors import Interrupted, ShapebenchError
 from shapebench.hashing import stable_seed
 from shapebench.method import TrainingContext
+from shapebench.progress import is_terminal
 from shapebench.types import TRAIN, Supervision
 
 
@@ -227,13 +228,13 @@ class ShapeDataModule(pl.LightningDataModule):
 
     def load_objects(self) -> int:
         """Load (preprocessing if needed) every training object; return how many are usable."""
-        from tqdm import tqdm
+        from shapebench.progress import progress_bar
 
         refs = self.dataset.objects(TRAIN)
         if not refs:
             raise ShapebenchError(f"dataset {self.dataset.name!r} has no training objects")
-        for ref in tqdm(refs, desc="loading training objects", unit="obj", leave=False,
-                        disable=self.quiet):  # fmt: skip
+        for ref in progress_bar(desc="loading training objects", quiet=self.quiet,
+                                iterable=refs):  # fmt: skip
             try:
                 data = self.dataset.load(ref, need=self.need)
             except ObjectLoadError:
@@ -536,8 +537,8 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
         precision=t.precision, max_epochs=t.max_epochs or max_epochs, logger=logger,
         callbacks=[saver, EpochSeeds(t.seed), stopper], default_root_dir=ctx.workdir,
         enable_checkpointing=False, plugins=[AtomicCheckpointIO(), *_cluster_environment()],
-        log_every_n_steps=1, enable_model_summary=False, enable_progress_bar=not ctx.quiet,
-        deterministic="warn",
+        log_every_n_steps=1, enable_model_summary=False, deterministic="warn",
+        enable_progress_bar=not ctx.quiet and is_terminal(),  # no bar in logs
     )  # fmt: skip
     state = _resume_state(last, ctx.workdir.name)
     resumed = _epochs_of(state) if state is not None else None

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import multiprocessing
 import pickle
-import sys
 import time
 from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -278,13 +277,9 @@ def _is_cached(dataset: Dataset, ref: ObjectRef) -> bool:
 
 
 def _progress(total: int, desc: str, quiet: bool):
-    from tqdm import tqdm
+    from shapebench.progress import progress_bar
 
-    from shapebench.runner import _is_terminal
-
-    # Drawn on a terminal only: in a log file its carriage returns make one endless line.
-    return tqdm(total=total, desc=desc, unit="obj", disable=quiet or not _is_terminal(),
-                file=sys.stderr)  # fmt: skip
+    return progress_bar(total, desc, quiet, leave=True)
 
 
 @dataclass

@@ -9,7 +9,6 @@ that table and counted; the other objects go on.
 from __future__ import annotations
 
 import math
-import sys
 import tempfile
 import time
 from collections import OrderedDict
@@ -220,19 +219,9 @@ def _pm_text(metrics: dict[str, float], metric: str, scale: float) -> str:
 
 
 def _progress(total: int, desc: str, quiet: bool):
-    from tqdm import tqdm
+    from shapebench.progress import progress_bar
 
-    # A bar redraws itself with carriage returns: in a log file or a pipe that is one endless
-    # line, so bars are drawn on a terminal only (the summaries say what was done).
-    return tqdm(total=total, desc=desc, unit="obj", disable=quiet or not _is_terminal(),
-                leave=False, file=sys.stderr)  # fmt: skip
-
-
-def _is_terminal() -> bool:
-    try:
-        return sys.stderr.isatty()
-    except (AttributeError, ValueError):  # replaced or closed stderr
-        return False
+    return progress_bar(total, desc, quiet)
 
 
 def check_context_sizes(

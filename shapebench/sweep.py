@@ -182,3 +182,54 @@ def run_sweep(
             f"{len(failures)} of the sweep's method x dataset runs failed: " + "; ".join(failures),
             "the other cells finished and are kept; fix the cause and rerun the same command",
         )
+
+
+def sweep_size(spec: SweepSpec, settings: Settings) -> int:
+    """How many cells the sweep has (methods x each dataset's splits x sizes x seeds), for its
+    progress line; a dataset that cannot be resolved counts 0 (its error comes with its run)."""
+    from shapebench.resolve import resolve_dataset
+
+    methods = sweep_methods(spec)
+    total = 0
+    for ds in spec.datasets:
+        try:
+            dataset = resolve_dataset(get_registry(), ds.name, settings, ds.data_root, ds.options)
+        except ShapebenchError:
+            continue
+        splits = spec.splits or list(dataset.eval_splits)
+        total += len(methods) * len(splits) * len(set(spec.contexts)) * len(spec.seeds)
+    return total
+
+
+class SweepProgress:
+    """``12/48 cells (4 already done), 3m12s elapsed, about 9m left`` after each run of a sweep;
+    the estimate extrapolates the time per cell computed so far."""
+
+    def __init__(self, total: int) -> None:
+        import time
+
+        self.total = total
+        self.done = self.cached = 0
+        self.start = time.monotonic()
+
+    def update(self, outcome: EvalOutcome) -> str:
+        import time
+
+        self.done += len(outcome.cells)
+        self.cached += sum(1 for c in outcome.cells if c.skipped)
+        elapsed = time.monotonic() - self.start
+        computed = self.done - self.cached
+        left = max(self.total - self.done, 0)
+        eta = f", about {_duration(elapsed / computed * left)} left" if computed and left else ""
+        already = f" ({self.cached} already done)" if self.cached else ""
+        return (f"sweep progress: {self.done}/{self.total} cells{already}, "
+                f"{_duration(elapsed)} elapsed{eta}")  # fmt: skip
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"

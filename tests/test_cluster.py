@@ -88,6 +88,7 @@ def test_plan_lists_missing_cells_then_nothing_once_the_sweep_ran(shapebench, tm
     assert "4 cells: 4 not submitted" in res.stdout
     res = sb("sweep", str(sweep), "-q")
     assert res.returncode == 0, res.stderr
+    assert "sweep progress: 4/4 cells" in res.stdout
     res = sb("sweep", str(sweep), "--status")
     assert "4 cells: 4 finished" in res.stdout
     res = sb("sweep", str(sweep), "--launcher", "submitit-local")

@@ -67,3 +67,22 @@ def test_sweep_resumes_after_kill_9_without_duplicates(with_example, tmp_path):
     forced = sb("sweep", str(sweep), "-q", "--force")
     assert forced.returncode == 0
     assert len(sb.cell_runs("synthetic-novel")) == len(finished) + 4
+
+
+def test_sweep_progress_counts_cells_and_extrapolates_from_computed_ones(monkeypatch):
+    from types import SimpleNamespace
+
+    import shapebench.sweep as sweep_mod
+
+    clock = iter([0.0, 60.0, 120.0])
+    monkeypatch.setattr("time.monotonic", lambda: next(clock))
+    progress = sweep_mod.SweepProgress(total=8)
+    cells = lambda skipped: [SimpleNamespace(skipped=skipped)] * 2  # noqa: E731
+    assert progress.update(SimpleNamespace(cells=cells(True))) == (
+        "sweep progress: 2/8 cells (2 already done), 1m00s elapsed"
+    )  # nothing computed yet: no estimate
+    # 2 cells computed in 120 s: 60 s per cell, 4 cells left.
+    assert progress.update(SimpleNamespace(cells=cells(False))) == (
+        "sweep progress: 4/8 cells (2 already done), 2m00s elapsed, about 4m00s left"
+    )
+    assert sweep_mod._duration(3 * 3600 + 125) == "3h02m"
