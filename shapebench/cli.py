@@ -245,6 +245,13 @@ def cli() -> None:
     help="Leaderboard row name for this variant [default: the method name with the options "
     "that differ from the profile, e.g. gauss[sigma=0.05]].",
 )
+@click.option("--launcher", type=click.Choice(["inline", "slurm", "submitit-local"]),
+              default="inline", show_default=True,
+              help="slurm: submit the training and the cells as SLURM jobs (see sweep --help "
+              "and docs/cluster.md); submitit-local: the same jobs on this machine.")  # fmt: skip
+@click.option("--slurm", "slurm_opts", multiple=True, metavar="KEY=VALUE",
+              help="SLURM settings, as in a sweep file's launcher block (repeatable).")  # fmt: skip
+@click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
 @protocol_options
 @plugin_options
 @trainer_options
@@ -261,6 +268,9 @@ def run(
     force,
     quiet,
     label,
+    launcher,
+    slurm_opts,
+    wait,
     frame,
     context_normals,
     method_opts,
@@ -286,6 +296,8 @@ def run(
       shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
       shapebench run -m gauss -d synthetic --frame unit-diameter   # the paper's scale
       shapebench run -m msc -d synthetic --samples 4   # posterior samples, trains first
+      shapebench run -m igr -d shapenet --launcher slurm --slurm partition=gpu \\
+          --slurm tracking=per-job --devices 1 --accelerator gpu
     """
     from shapebench.orchestrate import EvalRequest, evaluate
     from shapebench.report import print_summary
@@ -307,6 +319,18 @@ def run(
         protocol=_protocol(frame, context_normals),
         label=label,
     )
+    if launcher != "inline":
+        from shapebench.sweep import load_sweep
+        from shapebench.sweep_cli import cluster_sweep, run_as_sweep
+
+        if checkpoint or force:
+            raise ShapebenchError("--checkpoint and --force need --launcher inline")
+        sweep_file = run_as_sweep(req, settings)
+        click.echo(f"as a sweep of one method: {sweep_file}")
+        given = {k: v for k, v in trainer.items() if v is not None}
+        cluster_sweep(load_sweep(sweep_file), sweep_file, settings, given,
+                      _parse(slurm_opts, "--slurm"), launcher, 1, wait, None, None)  # fmt: skip
+        return
     outcome = evaluate(req, settings, lambda seed: _trainer(settings, seed, **trainer))
     print_summary(outcome, settings)
     _exit_if_all_failed([outcome])

@@ -100,3 +100,36 @@ def cluster_sweep(spec: SweepSpec, sweep_file: Path, settings: Settings, given: 
             f"{failed} jobs failed, {len(plan.missing)} cells are missing",
             "see the logs above; rerun the same command to resubmit only what is missing",
         )
+
+
+def run_as_sweep(req: Any, settings: Settings) -> Path:
+    """``shapebench run`` on a cluster: the same request written as a sweep file of one method
+    (under the workspace's sweeps/, named by its content), so that jobs rebuild it exactly."""
+    import yaml
+
+    from shapebench.hashing import stable_hash
+
+    method: dict[str, Any] = {"name": req.method, "options": dict(req.method_opts)}
+    if req.label:
+        method["label"] = req.label
+    dataset: dict[str, Any] = {"name": req.dataset, "options": dict(req.dataset_opts)}
+    if req.data_root:
+        dataset["data_root"] = str(Path(req.data_root).absolute())
+    data: dict[str, Any] = {
+        "profile": settings.profile_name,
+        "methods": [method],
+        "datasets": [dataset],
+        "contexts": list(req.contexts),
+        "seeds": list(req.seeds),
+        "frame": req.protocol.frame,
+        "context_normals": req.protocol.context_normals,
+    }
+    if req.splits:
+        data["splits"] = list(req.splits)
+    if req.metrics:
+        data["metrics"] = list(req.metrics)
+    name = f"run-{req.method}-{req.dataset}-{stable_hash(data)[:8]}"
+    path = settings.artifact_root.parent / "sweeps" / f"{name}.yaml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump({"name": name, **data}, sort_keys=False))
+    return path

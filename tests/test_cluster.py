@@ -93,3 +93,19 @@ def test_plan_lists_missing_cells_then_nothing_once_the_sweep_ran(shapebench, tm
     assert "4 cells: 4 finished" in res.stdout
     res = sb("sweep", str(sweep), "--launcher", "submitit-local")
     assert res.returncode == 0 and "nothing to submit" in res.stdout, res.stderr
+
+
+def test_run_through_the_cluster_launcher_computes_the_cells_run_inline_finds(shapebench):
+    """`run --launcher submitit-local` logs under the same cell keys as an inline `run`."""
+    sb = shapebench
+    args = ["run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
+            "--contexts", "50"]  # fmt: skip
+    res = sb(*args, "--launcher", "submitit-local", timeout=600)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "as a sweep of one method" in res.stdout and "1 cells: 1 finished" in res.stdout
+    res = sb(*args)
+    assert res.returncode == 0, res.stderr
+    assert "cached" in res.stdout and " new " not in res.stdout
+    assert len(sb.cell_runs("synthetic-novel")) == 1
+    res = sb(*args, "--launcher", "slurm", "--checkpoint", str(sb.workspace / "mlflow.db"))
+    assert res.returncode == 2 and "--launcher inline" in res.stderr
