@@ -10,14 +10,13 @@ picture in the report.
 from __future__ import annotations
 
 import io
-import os
 import re
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from browser_support import keep_screenshot, launch_chromium
 from conftest import TINY, Shapebench
 from matplotlib.image import imread
 
@@ -25,10 +24,6 @@ from shapebench.pictures import is_blank
 
 pytestmark = pytest.mark.slow  # runs the CLI, MLflow and a browser
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run",
-                 "--disable-quic"]  # fmt: skip
 CONTEXTS = "50,100"
 
 
@@ -83,19 +78,6 @@ def test_every_method_pictures_the_same_objects(store, tmp_path):
     assert len({tuple(v) for v in seen.values()}) == 1, seen
 
 
-def _launch(p):
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: install Debian's chromium (apt-get install chromium)")
-    return p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-
-
-def _keep(shot: Path) -> None:
-    target = os.environ.get("SHAPEBENCH_TEST_ARTIFACTS")
-    if target:
-        Path(target).mkdir(parents=True, exist_ok=True)
-        shutil.copy(shot, Path(target) / shot.name)
-
-
 def test_report_opens_in_chromium_with_tables_figures_and_grids(store, tmp_path):
     from playwright.sync_api import sync_playwright
 
@@ -108,7 +90,7 @@ def test_report_opens_in_chromium_with_tables_figures_and_grids(store, tmp_path)
     shots.mkdir()
     requests, errors = [], []
     with sync_playwright() as p:
-        browser = _launch(p)
+        browser = launch_chromium(p)
         page = browser.new_page(viewport={"width": 1400, "height": 900})
         page.on("request", lambda r: requests.append(r.url))
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
@@ -159,7 +141,7 @@ def test_report_opens_in_chromium_with_tables_figures_and_grids(store, tmp_path)
     assert all(u.startswith(("file:", "data:")) for u in requests), requests
     for shot in sorted(shots.glob("*.png")):
         assert not is_blank(shot.read_bytes()), shot
-        _keep(shot)
+        keep_screenshot(shot)
     # The screenshot of a figure shows the plot, not an empty box: many distinct colours.
     pixels = imread(str(shots / "figure-chamfer.png"))[..., :3].reshape(-1, 3)
     assert len(np.unique(np.round(pixels, 2), axis=0)) > 30

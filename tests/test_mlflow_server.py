@@ -6,27 +6,12 @@ import os
 import signal
 import subprocess
 import sys
-import time
-import urllib.request
 
 import pytest
+from browser_support import wait_http
 from conftest import TINY, free_port
 
 pytestmark = [pytest.mark.server, pytest.mark.slow]  # starts servers and CLI subprocesses
-
-
-def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 90) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"server exited early: {proc.stderr.read() if proc.stderr else ''}")
-        try:
-            with urllib.request.urlopen(url, timeout=2) as resp:
-                if resp.status == 200:
-                    return
-        except OSError:
-            time.sleep(0.3)
-    raise TimeoutError(url)
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -53,7 +38,7 @@ def mlflow_server(tmp_path):
     )  # fmt: skip
     uri = f"http://127.0.0.1:{port}"
     try:
-        _wait_http(uri + "/health", proc)
+        wait_http(uri + "/health", proc)
         yield uri
     finally:
         _stop(proc)
@@ -87,7 +72,7 @@ def test_ui_serves_the_embedded_store_on_localhost(shapebench):
     port = free_port()
     proc = shapebench.popen("ui", "--port", str(port), start_new_session=True)
     try:
-        _wait_http(f"http://127.0.0.1:{port}/health", proc)
+        wait_http(f"http://127.0.0.1:{port}/health", proc)
         first = proc.stdout.readline()
         assert f"MLflow UI: http://127.0.0.1:{port}" in first
         assert shapebench.tracking_uri in first

@@ -10,21 +10,14 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
-import time
-import urllib.request
-from pathlib import Path
 
 import pytest
+from browser_support import keep_screenshot, launch_chromium, wait_http
 from conftest import TINY, Shapebench, free_port
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run",
-                 "--disable-quic"]  # fmt: skip
 #: The React app loads and queries the store after the page: generous on 2 shared cores.
 UI_TIMEOUT_MS = 90_000
 VARIANTS = {"gauss": [], "gauss[sigma=0.05]": ["-O", "sigma=0.05"]}
@@ -49,33 +42,6 @@ def _stop(proc: subprocess.Popen) -> None:
     except (ProcessLookupError, subprocess.TimeoutExpired):
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-
-
-def _wait_http(url: str, proc: subprocess.Popen, timeout: float = 120) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"shapebench ui exited early: {proc.stderr.read()}")
-        try:
-            with urllib.request.urlopen(url, timeout=2) as resp:
-                if resp.status == 200:
-                    return
-        except OSError:
-            time.sleep(0.5)
-    raise TimeoutError(url)
-
-
-def _launch(p):
-    if not Path(CHROMIUM).exists():
-        pytest.fail(f"{CHROMIUM} is missing: install Debian's chromium (apt-get install chromium)")
-    return p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-
-
-def _keep(shot: Path) -> None:
-    target = os.environ.get("SHAPEBENCH_TEST_ARTIFACTS")
-    if target:
-        Path(target).mkdir(parents=True, exist_ok=True)
-        shutil.copy(shot, Path(target) / shot.name)
 
 
 def _links(proc: subprocess.Popen, port: int) -> tuple[str, str]:
@@ -108,9 +74,9 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
         runs_url, charts_url = _links(proc, port)
         base = f"http://127.0.0.1:{port}/#/experiments/{exp.experiment_id}/runs"
         assert runs_url.startswith(base) and charts_url.startswith(base)
-        _wait_http(f"http://127.0.0.1:{port}/health", proc)
+        wait_http(f"http://127.0.0.1:{port}/health", proc)
         with sync_playwright() as p:
-            browser = _launch(p)
+            browser = launch_chromium(p)
             page = browser.new_page(viewport={"width": 1600, "height": 820})
             page.goto(runs_url, timeout=UI_TIMEOUT_MS)
             # The runs table: a row per variant (children folded under it), and the Chamfer
@@ -130,7 +96,7 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
                 shown = float(cell.first.inner_text(timeout=UI_TIMEOUT_MS))
                 assert shown == pytest.approx(run.data.metrics["chamfer-l2.mean"], rel=1e-9)
             page.screenshot(path=shots / "ui-runs-table.png")
-            _keep(shots / "ui-runs-table.png")
+            keep_screenshot(shots / "ui-runs-table.png")
 
             # The chart view: the metric against context size, one line per variant.
             page.goto(charts_url, timeout=UI_TIMEOUT_MS)
@@ -139,7 +105,7 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
                     timeout=UI_TIMEOUT_MS)  # fmt: skip
             page.get_by_text("Step", exact=True).first.wait_for(timeout=UI_TIMEOUT_MS)
             page.screenshot(path=shots / "ui-charts.png")
-            _keep(shots / "ui-charts.png")
+            keep_screenshot(shots / "ui-charts.png")
             browser.close()
     finally:
         _stop(proc)
