@@ -8,7 +8,7 @@ from collections import Counter
 
 import pytest
 from test_interruptions import processes_mentioning, wait_for
-from test_soak import SWEEP, all_runs, cell_runs, leaderboard
+from test_soak import SWEEP, all_runs, cell_runs, leaderboard, score_columns
 
 from shapebench.launchers import worker_argv
 
@@ -61,10 +61,7 @@ def _assert_each_cell_once_and_same_board(sb, expected, out):
                 if r.data.tags.get("shapebench.kind") == "training"]  # fmt: skip
     assert len(training) == 1
     got = leaderboard(sb, out)
-    numeric = expected.select_dtypes("number").columns.drop(
-        [c for c in ("seconds_per_object", "train_wall_seconds", "train_device_hours")
-         if c in expected.columns]  # timings differ between runs; the scores may not
-    )
+    numeric = score_columns(expected)  # timings differ between runs; the scores may not
     assert ((got[numeric] - expected[numeric]).abs().max().max()) == 0
 
 

@@ -37,7 +37,7 @@ def test_third_party_plugin_is_listed_described_and_runs(with_example):
     res = with_example("methods")
     assert res.returncode == 0, res.stderr
     assert "example-sphere  (shapebench-example 0.3.1)" in res.stdout
-    assert "radius_scale (float, default 1.0)" in res.stdout
+    assert "radius_scale (float, 1.0)" in res.stdout  # the value in effect (the default)
     assert "trains: yes; needs: surface_points" in res.stdout  # example-template
 
     res = with_example("run", "-m", "example-sphere", "-d", "synthetic", *TINY, "--contexts", "50")
