@@ -524,6 +524,9 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     # Lightning's start-up banner (devices, tips) and a torch-internal deprecation are noise here.
     logging.getLogger("pytorch_lightning.utilities.rank_zero").setLevel(logging.WARNING)
     warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
+    # Where SLURM is installed, Lightning suggests srun for any training outside a job; the
+    # cluster launcher starts trainings with srun itself (shapebench.cluster).
+    warnings.filterwarnings("ignore", message=r".*The `srun` command is available")
     # Lightning cannot know that our sampler skips the batches a mid-epoch checkpoint had done.
     warnings.filterwarnings("ignore", message=r".*resuming from a checkpoint that ended before")
     logger = (MLFlowLogger(tracking_uri=ctx.tracking_uri, run_id=ctx.run_id)

@@ -1,0 +1,73 @@
+"""Every row of a leaderboard against one reference row, paired over the same objects.
+
+An ordering claim ("IGR beats Gauss densification at 50 points") is only made with its paired
+test: for each row and context size this prints the mean and median, how many objects the row
+wins against the reference, the two-sided Wilcoxon signed-rank p-value over the shared
+(object, seed) pairs, and each row's ratio of means from the smallest to the largest context.
+
+    .venv/bin/python benchmarks/paired_vs_reference.py -d synthetic --split trained \
+        --reference gauss [--workspace shapebench-runs]
+
+It reads the same per-object tables as ``shapebench leaderboard`` (failed objects scored by
+the leaderboard's failure rule), from the workspace's MLflow store.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from shapebench.board_stats import paired_p
+from shapebench.config import make_settings
+from shapebench.leaderboard import build_board
+from shapebench.tracking import Tracker
+
+
+def compare(board, reference: str) -> list[str]:
+    scored = board.scored
+    labels = {r.variant: r.label for r in board.rows}
+    ref = next(r.variant for r in board.rows if r.label == reference)
+    lines = [f"{board.dataset}/{board.split}, {board.metric} x{board.scale:g}, against "
+             f"{reference} (wins: objects where the row is lower)",
+             f"{'row':<28} {'k':>5} {'mean':>8} {'median':>8} {'wins':>7} {'p':>8}"]  # fmt: skip
+    for row in board.rows:
+        for k in board.contexts:
+            mine = scored[(scored["variant"] == row.variant) & (scored["context"] == k)]
+            theirs = scored[(scored["variant"] == ref) & (scored["context"] == k)]
+            pairs = mine.merge(theirs, on=["object", "seed"], suffixes=("", "_ref"))
+            if pairs.empty:
+                continue
+            a = pairs["scored"].to_numpy() * board.scale
+            b = pairs["scored_ref"].to_numpy() * board.scale
+            wins = f"{int((a < b).sum())}/{len(a)}"
+            p = "-" if row.variant == ref else f"{paired_p(a, b):.2g}"
+            lines.append(f"{labels[row.variant]:<28} {k:>5} {a.mean():>8.2f} "
+                         f"{np.median(a):>8.2f} {wins:>7} {p:>8}")  # fmt: skip
+    lo, hi = min(board.contexts), max(board.contexts)
+    lines.append(f"ratio of means, k={lo} / k={hi}:")
+    for row in board.rows:
+        mine = scored[scored["variant"] == row.variant]
+        means = mine.groupby("context")["scored"].mean()
+        if lo in means and hi in means and means[hi] > 0:
+            lines.append(f"  {labels[row.variant]:<26} {means[lo] / means[hi]:.2f}")
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("-d", "--dataset", required=True)
+    parser.add_argument("--split", required=True)
+    parser.add_argument("--reference", default="gauss")
+    parser.add_argument("--metric", default=None)
+    parser.add_argument("--workspace", default=None)
+    args = parser.parse_args()
+    tracker = Tracker(make_settings(workspace=args.workspace))
+    board = build_board(tracker, args.dataset, args.split, args.reference, args.metric)
+    if board is None or board.scored is None:
+        raise SystemExit(f"no runs of {args.dataset}-{args.split} in this store")
+    print("\n".join(compare(board, args.reference)))
+
+
+if __name__ == "__main__":
+    main()
