@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import time
 import urllib.request
@@ -47,3 +48,14 @@ def wait_http(url: str, proc: subprocess.Popen, timeout: float = 120) -> None:
         except OSError:
             time.sleep(0.3)
     raise TimeoutError(url)
+
+
+def stop_server(proc: subprocess.Popen) -> None:
+    """Stop a server's whole process group (started with ``start_new_session=True``): mlflow's
+    workers outlive a plain SIGTERM of the parent."""
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=15)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()

@@ -3,25 +3,14 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 
 import pytest
-from browser_support import wait_http
+from browser_support import stop_server, wait_http
 from conftest import TINY, free_port
 
 pytestmark = [pytest.mark.server, pytest.mark.slow]  # starts servers and CLI subprocesses
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """Stop the whole process group: mlflow's workers outlive a plain SIGTERM of the parent."""
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(timeout=15)
-    except (ProcessLookupError, subprocess.TimeoutExpired):
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
 
 
 @pytest.fixture
@@ -41,7 +30,7 @@ def mlflow_server(tmp_path):
         wait_http(uri + "/health", proc)
         yield uri
     finally:
-        _stop(proc)
+        stop_server(proc)
 
 
 def test_run_and_leaderboard_over_http(shapebench, mlflow_server):
@@ -77,4 +66,4 @@ def test_ui_serves_the_embedded_store_on_localhost(shapebench):
         assert f"MLflow UI: http://127.0.0.1:{port}" in first
         assert shapebench.tracking_uri in first
     finally:
-        _stop(proc)
+        stop_server(proc)

@@ -8,14 +8,12 @@ printed.
 
 from __future__ import annotations
 
-import os
 import re
-import signal
 import socket
 import subprocess
 
 import pytest
-from browser_support import keep_screenshot, launch_chromium, wait_http
+from browser_support import keep_screenshot, launch_chromium, stop_server, wait_http
 from conftest import TINY, Shapebench, free_port
 
 #: The React app loads and queries the store after the page: generous on 2 shared cores.
@@ -32,16 +30,6 @@ def store(tmp_path_factory, data_cache) -> Shapebench:
                  "--contexts", "50,100,300", "-q", *extra)  # fmt: skip
         assert res.returncode == 0, res.stderr
     return sb
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """Stop the whole process group: mlflow's workers outlive a plain SIGTERM of the parent."""
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(timeout=15)
-    except (ProcessLookupError, subprocess.TimeoutExpired):
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
 
 
 def _links(proc: subprocess.Popen, port: int) -> tuple[str, str]:
@@ -108,7 +96,7 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
             keep_screenshot(shots / "ui-charts.png")
             browser.close()
     finally:
-        _stop(proc)
+        stop_server(proc)
     for shot in ("ui-runs-table.png", "ui-charts.png"):
         assert (shots / shot).stat().st_size > 10_000  # a drawn page, not an empty one
 
