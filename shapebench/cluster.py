@@ -241,7 +241,7 @@ class TrainingJob:
         from shapebench.lightning_fit import TrainingInterrupted
         from shapebench.orchestrate import resolve_request
         from shapebench.sweep import request, sweep_methods
-        from shapebench.training import checkpoint_key, train_here
+        from shapebench.training import apply_trainer, checkpoint_key, train_here
 
         self.ctx.start()
         settings = self.ctx.settings()
@@ -250,8 +250,6 @@ class TrainingJob:
         dataset_entry = spec.datasets[self.task.dataset_index]
         resolved = resolve_request(request(spec, entry, dataset_entry, quiet=True), settings)
         trainer = self.ctx.trainer_for_seed(settings)(self.task.seed)
-        from shapebench.training import apply_trainer
-
         key = checkpoint_key(apply_trainer(resolved.method, trainer), resolved.dataset, trainer)
         if key != self.task.key:
             raise ShapebenchError(
@@ -431,7 +429,9 @@ def wait_for(jobs: list[Any], echo: Callable[[str], None], poll: float = 2.0) ->
     failed = 0
     pending = list(jobs)
     while pending:
-        queue = _queue()
+        # Local jobs answer done() themselves: ask SLURM only when some job is SLURM's.
+        local = all(type(job).__name__ == "LocalJob" for job in pending)
+        queue = {} if local else _queue()
         still = []
         for job in pending:
             if type(job).__name__ == "LocalJob":

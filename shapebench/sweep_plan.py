@@ -96,6 +96,7 @@ def plan_sweep(
                 continue
             for sp in seed_plans(req, resolved, settings, trainer_for_seed):
                 training = sp.checkpoint.get("key") if "training" in sp.checkpoint else None
+                needed = False  # some cell of this seed is missing
                 for split in sp.plan.splits:
                     exp_id = tracker.experiment_id(experiment_name(ds.name, split), create=False)
                     for seed, size, _cfg, key in planned_cells(sp.plan, split):
@@ -105,12 +106,13 @@ def plan_sweep(
                         done = runner.finished(sp.plan, exp_id, key) if exp_id else None
                         if done is not None:
                             out.finished[key] = done.run_id
+                        else:
+                            needed = True
                 if training is None:
                     continue
                 if read_done(checkpoint_dir(settings, sp.method, training)) is not None:
                     out.trained.add(training)
-                elif any(c.training == training and c.key not in out.finished
-                         for c in out.cells):  # fmt: skip
+                elif needed:
                     trainings.setdefault(
                         training,
                         TrainingTask(mi, di, sp.seed, training, sp.variant.label, ds.name),
