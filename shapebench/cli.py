@@ -238,6 +238,9 @@ def cli() -> None:
     "with a per-point spread.",
 )
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
+@click.option("--retrain", is_flag=True,
+              help="Train locally even where shapebench ships a reference checkpoint of the "
+              "same key (the rows are then labelled weights=local).")  # fmt: skip
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
 @click.option(
     "--label",
@@ -266,6 +269,7 @@ def run(
     checkpoint,
     samples,
     force,
+    retrain,
     quiet,
     label,
     launcher,
@@ -318,13 +322,14 @@ def run(
         quiet=quiet,
         protocol=_protocol(frame, context_normals),
         label=label,
+        retrain=retrain,
     )
     if launcher != "inline":
         from shapebench.sweep import load_sweep
         from shapebench.sweep_cli import cluster_sweep, run_as_sweep
 
-        if checkpoint or force:
-            raise ShapebenchError("--checkpoint and --force need --launcher inline")
+        if checkpoint or force or retrain:
+            raise ShapebenchError("--checkpoint, --force and --retrain need --launcher inline")
         sweep_file = run_as_sweep(req, settings)
         click.echo(f"as a sweep of one method: {sweep_file}")
         given = {k: v for k, v in trainer.items() if v is not None}
@@ -372,6 +377,9 @@ def _parse(pairs, flag) -> dict:
 @cli.command()
 @click.argument("sweep_file", type=click.Path(dir_okay=False))
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
+@click.option("--retrain", is_flag=True,
+              help="Train locally even where shapebench ships a reference checkpoint of the "
+              "same key (the rows are then labelled weights=local).")  # fmt: skip
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
 @click.option(
     "--launcher",
@@ -399,8 +407,8 @@ def _parse(pairs, flag) -> dict:
 @protocol_options
 @trainer_options
 @store_options
-def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, worker, frame,
-          context_normals, profile, tracking_uri, cache_dir, workspace,
+def sweep(sweep_file, force, retrain, quiet, launcher, jobs, slurm_opts, status, wait, worker,
+          frame, context_normals, profile, tracking_uri, cache_dir, workspace,
           **trainer) -> None:  # fmt: skip
     """Run every method x dataset x split x context size x seed of SWEEP_FILE.
 
@@ -461,18 +469,18 @@ def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, wo
         if status:
             show_status(spec, settings, given, _parse(slurm_opts, "--slurm"), launcher)
             return
-        if force:
-            raise ShapebenchError("--force cannot be split between jobs",
-                                  "run a forced sweep with --launcher inline")  # fmt: skip
+        if force or retrain:
+            raise ShapebenchError("--force and --retrain cannot be split between jobs",
+                                  "run such a sweep with --launcher inline")  # fmt: skip
         cluster_sweep(spec, Path(sweep_file), settings, given, _parse(slurm_opts, "--slurm"),
                       launcher, jobs, wait, frame, context_normals)  # fmt: skip
         return
     if launcher == "local":
         from shapebench.launchers import run_local
 
-        if force:
-            raise ShapebenchError("--force cannot be split between workers",
-                                  "run a forced sweep with --launcher inline")  # fmt: skip
+        if force or retrain:
+            raise ShapebenchError("--force and --retrain cannot be split between workers",
+                                  "run such a sweep with --launcher inline")  # fmt: skip
         if jobs < 1:
             raise ShapebenchError(f"--jobs must be at least 1, got {jobs}")
         log_dir = settings.artifact_root.parent / "logs"
@@ -498,6 +506,7 @@ def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, wo
         lambda seed: _trainer(settings, seed, **trainer),
         report,
         offset=worker,
+        retrain=retrain,
     ):
         print_summary(outcome, settings)
         click.secho(progress.update(outcome), dim=True)
@@ -509,6 +518,9 @@ def sweep(sweep_file, force, quiet, launcher, jobs, slurm_opts, status, wait, wo
 @click.option("--method", "-m", required=True, help="Method name.")
 @click.option("--dataset", "-d", required=True, help="Dataset to train on (its train split).")
 @click.option("--seed", default=0, show_default=True, help="Training seed.")
+@click.option("--retrain", is_flag=True,
+              help="Train even where shapebench ships a reference checkpoint of the same key "
+              "(by default it is installed instead).")  # fmt: skip
 @click.option("--quiet", "-q", is_flag=True, help="Less output.")
 @plugin_options
 @trainer_options
@@ -517,6 +529,7 @@ def train(
     method,
     dataset,
     seed,
+    retrain,
     quiet,
     method_opts,
     dataset_opts,
@@ -531,7 +544,9 @@ def train(
 
     The checkpoint is keyed by (method config, dataset, seed) and reused by 'run' and 'sweep';
     an interrupted training resumes from its last checkpoint. 'run' trains by itself when no
-    checkpoint exists: train ahead to do it on another machine or with other devices.
+    checkpoint exists: train ahead to do it on another machine or with other devices. Where
+    shapebench ships a reference checkpoint of the key (the synthetic benchmark at the default
+    profile), it is installed instead of training, unless --retrain.
 
     \b
     Examples:
@@ -550,7 +565,8 @@ def train(
     if not resolved.cls.trains:
         raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
     ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet)
+    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet,
+                        retrain)  # fmt: skip
     click.echo(f"checkpoint: {record['path']}")
 
 

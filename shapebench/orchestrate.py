@@ -21,8 +21,10 @@ from shapebench.training import (
     apply_trainer,
     checkpoint_key,
     ensure_checkpoint,
+    find_reference,
     profile_trainer,
     training_identity,
+    weights_origin,
 )
 from shapebench.types import TRAIN
 from shapebench.variant import Variant, make_variant
@@ -44,6 +46,8 @@ class EvalRequest:
     quiet: bool = False
     protocol: Protocol = field(default_factory=Protocol)
     label: str | None = None
+    #: Train locally even when a reference checkpoint of the key is shipped.
+    retrain: bool = False
 
 
 @dataclass
@@ -162,7 +166,12 @@ def seed_plans(
                 checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
                 training = training_identity(seed_method, trainer)
                 checkpoint["training"] = training
-        variant = _variant(seed_method, dataset, req, settings, trainer, training)
+                origin = weights_origin(settings, seed_method, checkpoint["key"], req.retrain)
+                if origin:  # shipped weights are not those a local training would give
+                    checkpoint["weights"] = origin
+                elif find_reference(seed_method, checkpoint["key"]) is not None:
+                    origin = "local"  # a row beside the reference's: its label says so
+        variant = _variant(seed_method, dataset, req, settings, trainer, training, origin)
         plan = RunPlan(
             seed_method, dataset, resolved.splits, resolved.contexts, [seed], resolved.metrics,
             req.force, req.quiet, checkpoint, req.protocol, variant,
@@ -198,6 +207,7 @@ def _variant(
     settings: Settings,
     trainer: TrainerOptions,
     training: dict[str, Any] | None,
+    weights: str | None = None,
 ) -> Variant:
     """The leaderboard row of this run (see :mod:`shapebench.variant`)."""
     training_overrides: dict[str, Any] = {}
@@ -219,6 +229,7 @@ def _variant(
         train_data=dataset.training_fingerprint() if training is not None else None,
         checkpoint_file=_given_checkpoint_key(req.checkpoint) if req.checkpoint else None,
         label=req.label,
+        weights=weights,
     )
 
 
@@ -243,6 +254,7 @@ def _method_factory(
                     settings,
                     Path(req.data_root) if req.data_root else None,
                     req.quiet,
+                    retrain=req.retrain,
                 )
                 path = record["path"]
                 if record.get("run_id"):

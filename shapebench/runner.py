@@ -114,7 +114,7 @@ def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: in
     """Everything that determines a cell's result; its hash is the cell key. The method part
     holds a digest of its code, and the checkpoint key the training settings and data."""
     frame = plan.protocol.frame
-    return {
+    cfg = {
         "protocol": plan.protocol.config(),
         "method": plan.method.config(),
         "dataset": plan.dataset.config(),
@@ -126,6 +126,9 @@ def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: in
         "checkpoint": plan.checkpoint.get("key"),
         "training": plan.checkpoint.get("training"),
     }
+    if plan.checkpoint.get("weights"):  # shipped weights (reference checkpoints); local: absent,
+        cfg["weights"] = plan.checkpoint["weights"]  # so cells of local trainings keep their keys
+    return cfg
 
 
 def planned_cells(plan: RunPlan, split: str) -> list[tuple[int, int, dict, str]]:

@@ -131,7 +131,7 @@ def sweep_methods(spec: SweepSpec) -> list[Entry]:
 
 
 def request(spec: SweepSpec, method: Entry, dataset: Entry, force: bool = False,
-            quiet: bool = False, **narrow: Any) -> EvalRequest:  # fmt: skip
+            quiet: bool = False, retrain: bool = False, **narrow: Any) -> EvalRequest:  # fmt: skip
     """The ``shapebench run`` of one method on one dataset of the sweep; ``narrow`` (splits,
     contexts, seeds) restricts it to some of its cells, as a cluster job does."""
     return EvalRequest(
@@ -148,6 +148,7 @@ def request(spec: SweepSpec, method: Entry, dataset: Entry, force: bool = False,
         quiet=quiet,
         protocol=spec.protocol,
         label=method.label,
+        retrain=retrain,
     )
 
 
@@ -159,9 +160,11 @@ def run_sweep(
     trainer_for_seed: Callable[[int], TrainerOptions],
     on_error: Callable[[str, str, ShapebenchError], None] | None = None,
     offset: int = 0,
+    retrain: bool = False,
 ) -> Iterator[EvalOutcome]:
     """Evaluate every method on every dataset of ``spec``; ``offset`` rotates the order of the
-    methods (worker ``i`` of a local launcher starts on the ``i``-th method)."""
+    methods (worker ``i`` of a local launcher starts on the ``i``-th method); ``retrain``
+    trains locally where a reference checkpoint is shipped."""
     methods = sweep_methods(spec)
     if methods and offset:
         k = offset % len(methods)
@@ -171,8 +174,8 @@ def run_sweep(
     for ds in spec.datasets:
         for m in methods:
             try:
-                yield evaluate(request(spec, m, ds, force, quiet), settings, trainer_for_seed,
-                               tracker)  # fmt: skip
+                yield evaluate(request(spec, m, ds, force, quiet, retrain), settings,
+                               trainer_for_seed, tracker)  # fmt: skip
             except ShapebenchError as exc:  # one method failing must not stop the others
                 failures.append(f"{m.name} on {ds.name}: {exc.message}")
                 if on_error is not None:

@@ -178,11 +178,14 @@ def train_here(
     trainer: TrainerOptions,
     settings: Settings,
     quiet: bool = False,
+    retrain: bool = False,
 ) -> dict[str, Any]:
     """Train in this process (the ``shapebench train`` command); return the checkpoint record.
 
     Resumes from the key's last epoch-end checkpoint when an earlier training was interrupted;
-    waits for, then reuses, a training of the same key running in another process.
+    waits for, then reuses, a training of the same key running in another process. A shipped
+    reference checkpoint of the key (:mod:`shapebench.reference_checkpoints`) is used instead of
+    training unless ``retrain``.
     """
     from shapebench.locks import wait_lock
 
@@ -203,9 +206,12 @@ def train_here(
         lock = wait_lock(lock_path(workdir), waiting)
     try:
         if lead:
-            record = read_done(workdir)
+            record = _reusable(read_done(workdir), workdir, retrain)
             if record is not None:  # trained by the process we waited for
                 return record
+            reference = None if retrain else find_reference(method, key)
+            if reference is not None:
+                return _use_reference(reference, method, dataset, trainer, settings, key, workdir)
         return _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id)
     finally:
         if lock is not None:
@@ -239,18 +245,7 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
                                if hasattr(method.options, "epochs") else "")  # fmt: skip
         run_id = tracker.start_run(exp, f"train {label} on {dataset.name} seed={trainer.seed}",
                                    tags)  # fmt: skip
-        tracker.log_params(
-            run_id,
-            flatten(
-                "",
-                {
-                    "method": method.config(),
-                    "trainer": asdict(trainer),
-                    "training": training_identity(method, trainer),
-                    "dataset": dataset.config(),
-                },
-            ),
-        )
+        tracker.log_params(run_id, _training_params(method, dataset, trainer))
         os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
     instance = method.instantiate()
     try:
@@ -262,13 +257,91 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
             interrupted = isinstance(exc, (TrainingInterrupted, KeyboardInterrupt))
             tracker.end(run_id, "KILLED" if interrupted else "FAILED")
         raise
-    record = {"key": key, "path": str(path), "run_id": run_id}
+    record = {"key": key, "path": str(path), "run_id": run_id}  # weights: local (no "weights")
     if _global_rank() == 0:
         tmp = workdir / "done.json.tmp"
         tmp.write_text(json.dumps(record))
         tmp.replace(workdir / "done.json")
         if tracker is not None:
             tracker.end(run_id)
+    return record
+
+
+def _training_params(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions):
+    return flatten("", {"method": method.config(), "trainer": asdict(trainer),
+                        "training": training_identity(method, trainer),
+                        "dataset": dataset.config()})  # fmt: skip
+
+
+def find_reference(method: ResolvedMethod, key: str):
+    """The shipped reference checkpoint of ``method`` for ``key``, or None."""
+    from shapebench.reference_checkpoints import find
+
+    return find(method.cls.checkpoint_family or method.name, key)
+
+
+def weights_origin(
+    settings: Settings, method: ResolvedMethod, key: str, retrain: bool
+) -> str | None:
+    """Where the weights of ``key`` come (or will come) from, as cells and rows record it:
+    ``reference:<digest>`` for a shipped reference checkpoint, None for a local training.
+    Read before any training, from the workspace's ``done.json`` or the reference folder."""
+    if retrain:
+        return None
+    try:
+        record = json.loads((checkpoint_dir(settings, method, key) / "done.json").read_text())
+        return record.get("weights") if isinstance(record, dict) else None
+    except (OSError, ValueError):
+        pass
+    reference = find_reference(method, key)
+    return None if reference is None else reference.origin
+
+
+def _reusable(record: dict[str, Any] | None, workdir: Path, retrain: bool) -> dict[str, Any] | None:
+    """``record`` unless ``retrain`` asks to replace reference weights by a local training (the
+    reference's copy is then removed)."""
+    if record is not None and retrain and record.get("weights"):
+        (workdir / "done.json").unlink(missing_ok=True)
+        Path(record["path"]).unlink(missing_ok=True)
+        return None
+    return record
+
+
+def _use_reference(reference, method, dataset, trainer, settings, key, workdir) -> dict[str, Any]:
+    """Install ``reference`` as the checkpoint of ``key`` and log it as a training run (its
+    cost and loss terms are those of the reference training); the caller holds the key's lock."""
+    from shapebench.reference_checkpoints import install
+
+    info = reference.info
+    summary = info.get("summary") or {}
+    print(f"{method.name}: using the reference checkpoint for key {key} ({reference.folder}; "
+          f"trained with '{info.get('command', '?')}' in {summary.get('wall_seconds', 0):.0f} s "
+          f"on {summary.get('device', '?')}); --retrain trains it here instead",
+          file=sys.stderr, flush=True)  # fmt: skip
+    path = install(reference, workdir)
+    tracker = Tracker(settings)
+    exp = tracker.experiment_id(training_experiment_name(dataset.name))
+    tags = {"shapebench.kind": TRAINING_KIND, "method": method.name, "dataset": dataset.name,
+            "checkpoint_key": key, "shapebench.reference": reference.origin,
+            "training_device": str(summary.get("device", ""))}  # fmt: skip
+    run_id = tracker.start_run(exp, f"reference {method.name} on {dataset.name} "
+                                    f"seed={trainer.seed}", tags)  # fmt: skip
+    tracker.log_params(run_id, _training_params(method, dataset, trainer))
+    metrics = {f"summary/{k}": float(summary[k])
+               for k in ("wall_seconds", "device_hours", "epochs", "optimizer_steps")
+               if isinstance(summary.get(k), (int, float))}  # fmt: skip
+    metrics.update({f"summary/final_{k.removeprefix('train/')}": float(v)
+                    for k, v in (summary.get("final") or {}).items()})  # fmt: skip
+    tracker.log_metrics(run_id, metrics, step=int(summary.get("optimizer_steps", 0)))
+    described = json.dumps(info, indent=1, sort_keys=True)
+    tracker.client.set_tag(run_id, "mlflow.note.content",
+                           "Reference checkpoint shipped with shapebench, not trained here."
+                           f"\n\n```json\n{described}\n```")  # fmt: skip
+    tracker.end(run_id)
+    record = {"key": key, "path": str(path), "run_id": run_id, "weights": reference.origin}
+    tmp = workdir / "done.json.tmp"
+    tmp.write_text(json.dumps(record))
+    tmp.replace(workdir / "done.json")
     return record
 
 
@@ -279,14 +352,30 @@ def ensure_checkpoint(
     settings: Settings,
     data_root: Path | None,
     quiet: bool = False,
+    retrain: bool = False,
 ) -> dict[str, Any]:
-    """Reuse the checkpoint of an identical training, or train in a child process."""
+    """Reuse the checkpoint of an identical training, else the shipped reference checkpoint of
+    its key (unless ``retrain``), else train in a child process."""
+    from shapebench.locks import wait_lock
+
     method = apply_trainer(method, trainer)
     key = checkpoint_key(method, dataset, trainer)
     workdir = checkpoint_dir(settings, method, key)
-    record = read_done(workdir)
+    record = _reusable(read_done(workdir), workdir, retrain)
     if record is not None:
         return record
+    reference = None if retrain else find_reference(method, key)
+    if reference is not None:
+        workdir.mkdir(parents=True, exist_ok=True)
+        lock = wait_lock(lock_path(workdir), lambda holder: None)
+        try:  # another process may have installed (or trained) it while we waited
+            record = read_done(workdir)
+            if record is None:
+                record = _use_reference(reference, method, dataset, trainer, settings, key,
+                                        workdir)  # fmt: skip
+            return record
+        finally:
+            lock.release()
     cmd = [
         sys.executable,
         "-m",
@@ -314,6 +403,8 @@ def ensure_checkpoint(
         cmd += ["--data-root", str(data_root)]
     if quiet:
         cmd.append("--quiet")
+    if retrain:
+        cmd.append("--retrain")
     # Why a (possibly long) training starts now, before its own output.
     resume = " (resuming from its last checkpoint)" if (workdir / "last.ckpt").exists() else ""
     print(f"training {method.name} on {dataset.name}: no checkpoint for key {key} in "

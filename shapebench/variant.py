@@ -60,18 +60,23 @@ def make_variant(
     train_data: str | None = None,
     checkpoint_file: str | None = None,
     label: str | None = None,
+    weights: str | None = None,
 ) -> Variant:
     """The row a run belongs to. ``training`` is the training identity without the seed (seeds
-    are samples of one row, not rows); ``train_data`` the dataset's training fingerprint."""
-    key = stable_hash(
-        {
-            "method": method_config,
-            "training": training,
-            "train_data": train_data,
-            "checkpoint_file": checkpoint_file,
-            "context_normals": protocol.context_normals,
-        }
-    )
+    are samples of one row, not rows); ``train_data`` the dataset's training fingerprint;
+    ``weights`` the origin of shipped weights (``reference:<digest>``, see
+    :mod:`shapebench.reference_checkpoints`), ``"local"`` for a local training of a key that
+    has shipped weights (labelled ``weights=local``), None for any other local training."""
+    identity = {
+        "method": method_config,
+        "training": training,
+        "train_data": train_data,
+        "checkpoint_file": checkpoint_file,
+        "context_normals": protocol.context_normals,
+    }
+    if weights and weights != "local":  # rows of local trainings keep the keys they always had
+        identity["weights"] = weights
+    key = stable_hash(identity)
     overrides: dict[str, Any] = dict(option_overrides)
     overrides.update(training_overrides or {})
     if profile != DEFAULT_PROFILE:
@@ -80,4 +85,6 @@ def make_variant(
         overrides["checkpoint"] = checkpoint_file.rsplit("/", 1)[-1].split(":", 1)[0]
     if protocol.context_normals:
         overrides["+normals"] = True
+    if weights == "local":
+        overrides["weights"] = "local"
     return Variant(key, label or auto_label(name, overrides), overrides)

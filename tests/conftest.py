@@ -11,7 +11,7 @@ import os
 import socket
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -71,6 +71,8 @@ class Shapebench:
     workspace: Path
     cache: Path
     sites: tuple[Path, ...] = ()
+    #: More environment variables (set after the SHAPEBENCH_ ones are cleared).
+    extra_env: dict[str, str] = field(default_factory=dict)
 
     @property
     def tracking_uri(self) -> str:
@@ -81,6 +83,7 @@ class Shapebench:
         env["SHAPEBENCH_WORKSPACE"] = str(self.workspace)
         env["SHAPEBENCH_CACHE_DIR"] = str(self.cache)
         env["PYTHONPATH"] = os.pathsep.join(str(s) for s in self.sites)
+        env.update(self.extra_env)
         return env
 
     def popen(self, *args: str, **kw) -> subprocess.Popen:

@@ -1,0 +1,169 @@
+"""Where does an auto-decoder lose: its shape space, or the test-time search in it?
+
+    .venv/bin/python benchmarks/latent_probe.py -m igr --checkpoint PATH [--objects 6]
+        [--contexts 50,1000] [--steps 50,400] [--split trained] [-O key=value ...]
+        [-D key=value ...] [--profile quick] [--cache-dir DIR]
+
+For a trained auto-decoder (IGR, DeepSDF) and the synthetic benchmark it was trained on, it
+prints chamfer-l2 x 1000 (mean and median over ``--objects`` objects) of:
+
+* ``trained code``: training objects decoded from the code training learned for them: what the
+  shape space holds at best (no search);
+* ``search, train obj``: the same objects completed from ``k`` of their own surface points by the
+  test-time optimiser with ``opt_steps`` = each of ``--steps``, and how far the found codes are
+  from the trained ones (mean L2): a search that cannot find a code the decoder already knows;
+* ``search, <split>``: test objects of ``--split`` completed the same way, next to Gauss
+  densification on the same points;
+
+so a completion that barely depends on the context can be told apart as a shape space that holds
+one blob (``trained code`` already bad), a search that stays near its start (``search`` far
+worse than ``trained code``, codes far from the trained ones), or both. Nothing is logged; the
+checkpoint is only read. Objects are spread over the categories (the first of each, then the
+second...).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from shapebench.types import TRAIN, TRAINED, Completion, Context, ObjectData, ObjectRef
+
+sys.path.insert(0, str(Path(__file__).parent))
+from ladder import chamfer_x1000, context_of, gauss_scores  # noqa: E402
+
+
+def spread(refs: list[ObjectRef], n: int) -> list[ObjectRef]:
+    """``n`` refs taking the categories in turn (first of each, then second of each...)."""
+    by_cat: dict[str, list[ObjectRef]] = {}
+    for r in refs:
+        by_cat.setdefault(r.category, []).append(r)
+    out: list[ObjectRef] = []
+    depth = 0
+    while len(out) < n and any(len(v) > depth for v in by_cat.values()):
+        out += [v[depth] for v in by_cat.values() if len(v) > depth]
+        depth += 1
+    return out[:n]
+
+
+def trained_codes(module: torch.nn.Module) -> torch.Tensor | None:
+    """The per-training-object codes of an auto-decoder module (IGR: a Parameter, DeepSDF: an
+    Embedding); None for a method that encodes (MSC)."""
+    latents = getattr(module, "latents", None)
+    if latents is None:
+        return None
+    return (latents.weight if isinstance(latents, torch.nn.Embedding) else latents).detach()
+
+
+def stats(values: list[float]) -> str:
+    finite = [v for v in values if not math.isnan(v)]
+    failed = len(values) - len(finite)
+    if not finite:
+        return f"{'all failed':>21}"
+    text = f"{np.mean(finite):>9.2f} {np.median(finite):>8.2f}"
+    return text + (f" ({failed} failed)" if failed else "   ")
+
+
+def search(method, objects: list[ObjectData], contexts: list[Context]):
+    """Completions of the contexts (batched as the runner does) and the codes found."""
+    codes = list(method.encode(contexts))
+    scores = []
+    for code, data, ctx in zip(codes, objects, contexts, strict=True):
+        try:
+            result: Completion | Exception = method.decode(code, ctx, len(data.gt_points))
+        except Exception as exc:  # an object that does not mesh counts as failed
+            result = exc
+        scores.append(chamfer_x1000(result, data, ctx))
+    # MSC's codes are (posterior mean, variance) pairs: the mean is the code
+    codes = [c[0] if isinstance(c, tuple) else c for c in codes]
+    return scores, torch.stack([torch.as_tensor(c) for c in codes])
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--method", "-m", required=True)
+    parser.add_argument("--checkpoint", required=True, type=Path)
+    parser.add_argument("--objects", type=int, default=6)
+    parser.add_argument("--contexts", default="50,1000")
+    parser.add_argument("--steps", default="50,400", help="opt_steps values to try")
+    parser.add_argument("--split", default=TRAINED)
+    parser.add_argument(
+        "--train-only",
+        action="store_true",
+        help="training objects only: what to look at while choosing training "
+        "settings (never choose them by test objects)",
+    )
+    parser.add_argument("--profile", default="quick")
+    parser.add_argument("--cache-dir", default=None)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("-O", action="append", default=[], help="method option KEY=VALUE")
+    parser.add_argument("-D", action="append", default=[], help="dataset option KEY=VALUE")
+    args = parser.parse_args(argv)
+
+    from shapebench.config import make_settings
+    from shapebench.options import parse_assignments
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset, resolve_method
+
+    settings = make_settings(None, args.cache_dir, args.profile, tempfile.gettempdir())
+    reg = get_registry()
+    resolved = resolve_method(reg, args.method, settings, parse_assignments(args.O, "-O"))
+    dataset = resolve_dataset(reg, "synthetic", settings, None, parse_assignments(args.D, "-D"))
+    sizes = [int(s) for s in args.contexts.split(",")]
+    steps = [int(s) for s in args.steps.split(",")]
+
+    train_refs = dataset.objects(TRAIN)
+    train_pick = spread(train_refs, args.objects)
+    train_objs = [dataset.load(r) for r in train_pick]
+    test_objs = [dataset.load(r) for r in spread(dataset.objects(args.split), args.objects)]
+
+    method = resolved.cls(resolved.options)
+    method.load_checkpoint(args.checkpoint)
+    base = method.options  # the recipe applied
+    table = trained_codes(method.module)
+    own = None
+    print(f"{'row':<28} {'k':>5} {'mean':>9} {'median':>8}    code dist  seconds")
+    if table is not None:
+        if len(table) != len(train_refs):
+            raise SystemExit(f"the checkpoint has {len(table)} codes, the training split "
+                             f"{len(train_refs)} objects: not this dataset's training")  # fmt: skip
+        own = table[[train_refs.index(r) for r in train_pick]].to(method.device)
+        print(f"{len(table)} trained codes, mean norm {table.norm(dim=1).mean():.3f}, mean "
+              f"pairwise distance {torch.cdist(table, table).mean():.3f}")  # fmt: skip
+        ctx0 = [context_of(d, sizes[-1], args.seed) for d in train_objs]
+        oracle = [chamfer_x1000(method.decode(z, c, len(d.gt_points)), d, c)
+                  for z, d, c in zip(own, train_objs, ctx0, strict=True)]  # fmt: skip
+        print(f"{'trained code, train obj':<28} {'-':>5} {stats(oracle)}")
+        print(
+            "  per object: "
+            + ", ".join(f"{d.ref.id} {v:.1f}" for d, v in zip(train_objs, oracle, strict=True))
+        )
+    for k in sizes:
+        groups = [(f"search, {TRAIN} obj", train_objs)]
+        if not args.train_only:
+            groups.append((f"search, {args.split}", test_objs))
+        for label, objs in groups:
+            ctxs = [context_of(d, k, args.seed) for d in objs]
+            for s in steps:
+                method.options = replace(base, opt_steps=s)
+                start = time.perf_counter()
+                scores, codes = search(method, objs, ctxs)
+                to_own = objs is train_objs and own is not None
+                dist = ((codes - own) if to_own else codes).norm(dim=1).mean().item()
+                what = "to trained" if to_own else "norm"
+                print(f"{label + f' {s} steps':<28} {k:>5} {stats(scores)} {what} {dist:.3f} "
+                      f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
+            if objs is not train_objs:
+                print(f"{'gauss, ' + args.split:<28} {k:>5} {stats(gauss_scores(objs, ctxs))}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""Train (or take) the reference checkpoints shapebench ships for the synthetic benchmark.
+
+    .venv/bin/python scripts/reference_checkpoints.py [--methods igr,msc] [--workspace DIR]
+        [--export-only] [--keep-stale]
+
+For every trainable method of the default sweep (``configs/sweeps/default.yaml``) at the default
+profile and seed 0, it computes the checkpoint key the current code gives, trains it with
+``shapebench train -m M -d synthetic --retrain --workspace DIR`` unless DIR already holds a
+finished training of that key (``--export-only``: never train), and writes the weights (no
+optimiser state) and ``reference.json`` (key, command, versions, machine, wall time, final loss
+terms) to ``shapebench/reference_checkpoints/<family>/<key>/``. Folders of a family whose key is
+no longer the current one are removed unless ``--keep-stale``. Methods sharing a checkpoint
+(``msc`` and ``msc-noopt``) are trained once. See :mod:`shapebench.reference_checkpoints`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATASET = "synthetic"
+
+
+def versions() -> dict[str, str]:
+    from importlib.metadata import version
+
+    out = {"python": platform.python_version()}
+    for dist in ("shapebench", "torch", "pytorch-lightning", "numpy"):
+        try:
+            out[dist] = version(dist)
+        except Exception:  # not installed under that name
+            continue
+    return out
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, {platform.system()}"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--methods", default=None, help="comma-separated (default: every "
+                        "trainable method of the default sweep)")  # fmt: skip
+    parser.add_argument("--workspace", default=str(Path(tempfile.gettempdir()) / "shapebench-refs"))
+    parser.add_argument("--export-only", action="store_true", help="never train")
+    parser.add_argument("--keep-stale", action="store_true")
+    parser.add_argument("--note", default="", help="recorded in reference.json, e.g. how the "
+                        "workspace's trainings were run")  # fmt: skip
+    args = parser.parse_args(argv)
+
+    from shapebench.config import make_settings
+    from shapebench.provenance import git_commit
+    from shapebench.reference_checkpoints import SHIPPED, export
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.sweep import load_sweep, sweep_methods
+    from shapebench.training import (
+        apply_trainer,
+        checkpoint_dir,
+        checkpoint_key,
+        profile_trainer,
+        read_done,
+    )
+
+    os.environ["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = "none"  # train, never install
+    settings = make_settings(None, None, None, args.workspace)
+    registry = get_registry()
+    default = load_sweep(ROOT / "configs" / "sweeps" / "default.yaml")
+    names = args.methods.split(",") if args.methods else [m.name for m in sweep_methods(default)]
+    dataset = resolve_dataset(registry, DATASET, settings, None, {})
+    target = SHIPPED
+    done_keys: dict[str, set[str]] = {}
+    for name in names:
+        method = resolve_method(registry, name, settings, {})
+        if not method.cls.trains:
+            continue
+        trainer = profile_trainer(settings, 0)
+        method = apply_trainer(method, trainer)
+        key = checkpoint_key(method, dataset, trainer)
+        family = method.cls.checkpoint_family or method.name
+        if key in done_keys.setdefault(family, set()):
+            continue  # msc-noopt: msc's checkpoint
+        workdir = checkpoint_dir(settings, method, key)
+        command = ["shapebench", "train", "-m", name, "-d", DATASET, "--retrain"]
+        record = read_done(workdir)
+        if record is None and args.export_only:
+            print(f"{name}: no finished training of key {key} in {workdir.parent}; skipped")
+            continue
+        if record is None:
+            print(f"{name}: training key {key} ({' '.join(command)})", flush=True)
+            start = time.perf_counter()
+            subprocess.run([sys.executable, "-m", *command[1:], "--workspace", args.workspace,
+                            "--quiet"], check=True)  # fmt: skip
+            print(f"{name}: trained in {time.perf_counter() - start:.0f} s", flush=True)
+            record = read_done(workdir)
+        summary = json.loads((workdir / "summary.json").read_text())
+        info = {
+            "key": key,
+            "method": name,
+            "family": family,
+            "dataset": DATASET,
+            "profile": settings.profile_name,
+            "seed": 0,
+            "command": " ".join(command),
+            "summary": summary,
+            "versions": versions(),
+            "machine": machine(),
+            "git_commit": git_commit(),
+            "exported": datetime.now(UTC).isoformat(timespec="seconds"),
+        }
+        if args.note:
+            info["note"] = args.note
+        ref = export(Path(record["path"]), target / family / key, info)
+        done_keys[family].add(key)
+        print(f"{name}: {ref.checkpoint} ({ref.info['bytes'] / 1e6:.2f} MB), "
+              f"trained in {summary['wall_seconds']:.0f} s on {summary['device']}")  # fmt: skip
+    if args.keep_stale:
+        return
+    for family, keys in done_keys.items():
+        for folder in sorted((target / family).iterdir()):
+            if folder.is_dir() and folder.name not in keys:
+                shutil.rmtree(folder)
+                print(f"removed stale reference {folder}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,112 @@
+"""Reference checkpoints: the shipped ones load and hold their keys; a run uses one when (and
+only when) its key matches, records where the weights came from, and --retrain trains instead."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pandas as pd
+import pytest
+from conftest import TINY
+
+from shapebench import reference_checkpoints as refs
+
+SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
+             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
+             "-O", "mesh_resolution=24"]  # fmt: skip
+RUN = ("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split", "novel",
+       "--contexts", "50", "-q")  # fmt: skip
+
+
+def _shipped() -> list[refs.Reference]:
+    found = []
+    for info in sorted(refs.SHIPPED.glob("*/*/" + refs.INFO_FILE)):
+        ref = refs.find(info.parent.parent.name, info.parent.name)
+        assert ref is not None, f"{info.parent} is not a valid reference folder"
+        found.append(ref)
+    return found
+
+
+def test_shipped_references_load_and_hold_their_keys():
+    from shapebench.checkpoints import load_module, verify_checkpoint
+    from shapebench.registry import get_registry
+
+    shipped = _shipped()
+    assert shipped, "shapebench ships no reference checkpoint"
+    registry = get_registry()
+    for ref in shipped:
+        assert refs.file_sha256(ref.checkpoint) == ref.info["sha256"], ref.checkpoint
+        verify_checkpoint(ref.checkpoint, ref.folder.name)  # the key stamped in the weights
+        method = registry.get("method", ref.info["method"])
+        module = load_module(method.cls(None).Module, ref.checkpoint)
+        assert sum(p.numel() for p in module.parameters()) > 0
+        assert ref.info["command"].startswith("shapebench train")
+        assert ref.info["summary"]["wall_seconds"] > 0 and ref.info["versions"]["torch"]
+
+
+def _make_reference(sb, root) -> refs.Reference:
+    """Train the small IGR in a workspace of its own and export it as a reference."""
+    trained = sb("train", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "-q")
+    assert trained.returncode == 0, trained.stderr
+    (done,) = (sb.workspace / "checkpoints" / "igr").glob("*/done.json")
+    record = json.loads(done.read_text())
+    summary = json.loads((done.parent / "summary.json").read_text())
+    info = {"key": record["key"], "method": "igr", "command": "shapebench train -m igr",
+            "summary": summary, "versions": {}}  # fmt: skip
+    ref = refs.export(refs.Path(record["path"]), root / "igr" / record["key"], info)
+    shutil.rmtree(sb.workspace)
+    sb.workspace.mkdir()
+    return ref
+
+
+@pytest.mark.slow
+def test_a_run_uses_the_reference_of_its_key_and_retrain_trains(shapebench, tmp_path):
+    sb = shapebench
+    root = tmp_path / "refs"
+    sb.extra_env["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = str(root)
+    ref = _make_reference(sb, root)
+
+    used = sb(*RUN)
+    assert used.returncode == 0, used.stderr
+    assert "using the reference checkpoint" in used.stderr
+    assert "training done" not in used.stderr  # nothing trained here
+    client = sb.client()
+    exp = client.get_experiment_by_name("training/synthetic")
+    (training,) = client.search_runs([exp.experiment_id])
+    assert training.data.tags["shapebench.reference"] == ref.origin
+    assert training.data.metrics["summary/wall_seconds"] == ref.info["summary"]["wall_seconds"]
+    (cell,) = sb.cell_runs("synthetic-novel")
+    assert cell.data.params["weights"] == ref.origin
+
+    again = sb(*RUN)  # cached: the same cell, not recomputed
+    assert again.returncode == 0 and len(sb.cell_runs("synthetic-novel")) == 1
+
+    retrained = sb(*RUN, "--retrain")
+    assert retrained.returncode == 0, retrained.stderr
+    assert "training done" in retrained.stderr
+    cells = sb.cell_runs("synthetic-novel")
+    assert len(cells) == 2  # another configuration: the weights differ in origin
+    assert sb("leaderboard", "-d", "synthetic").returncode == 0
+    board = pd.read_csv(sb.workspace / "leaderboards" / "synthetic-novel.csv")
+    labels = set(board["label"])
+    assert any("weights=local" in str(label) for label in labels), labels
+    assert len(labels) == 2
+
+
+@pytest.mark.slow
+def test_a_reference_of_another_key_or_a_damaged_one_is_not_used(shapebench, tmp_path):
+    sb = shapebench
+    root = tmp_path / "refs"
+    sb.extra_env["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = str(root)
+    ref = _make_reference(sb, root)
+
+    other = sb(*RUN, "-O", "epochs=3")  # another key: trains
+    assert other.returncode == 0, other.stderr
+    assert "using the reference" not in other.stderr and "training done" in other.stderr
+
+    ref.checkpoint.write_bytes(ref.checkpoint.read_bytes()[:-10] + b"0123456789")
+    damaged = sb(*RUN)
+    assert damaged.returncode != 0
+    assert "does not match its reference.json" in damaged.stderr
+    assert "--retrain" in damaged.stderr and "Traceback" not in damaged.stderr
