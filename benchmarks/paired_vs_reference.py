@@ -6,7 +6,11 @@ wins against the reference, the two-sided Wilcoxon signed-rank p-value over the 
 (object, seed) pairs, and each row's ratio of means from the smallest to the largest context.
 
     .venv/bin/python benchmarks/paired_vs_reference.py -d synthetic --split trained \
-        --reference gauss [--workspace shapebench-runs]
+        --reference gauss [--workspace shapebench-runs] [--before OTHER_WORKSPACE]
+
+With ``--before``, it also compares every row with the row of the same label in another
+workspace's store (an earlier version of the same benchmark: same objects and context points),
+paired over the objects: the mean before and now, the objects where now is lower, and p.
 
 It reads the same per-object tables as ``shapebench leaderboard`` (failed objects scored by
 the leaderboard's failure rule), from the workspace's MLflow store.
@@ -54,6 +58,29 @@ def compare(board, reference: str) -> list[str]:
     return lines
 
 
+def compare_before(now, before) -> list[str]:
+    """Each row of ``now`` against the row of the same label in ``before``, per context size."""
+    old = {r.label: r.variant for r in before.rows}
+    lines = ["now against before (wins: objects where now is lower)",
+             f"{'row':<28} {'k':>5} {'before':>8} {'now':>8} {'wins':>7} {'p':>8}"]  # fmt: skip
+    for row in now.rows:
+        if row.label not in old:
+            continue
+        for k in now.contexts:
+            mine = now.scored[(now.scored["variant"] == row.variant) & (now.scored["context"] == k)]
+            theirs = before.scored[(before.scored["variant"] == old[row.label])
+                                   & (before.scored["context"] == k)]  # fmt: skip
+            pairs = mine.merge(theirs, on=["object", "seed"], suffixes=("", "_ref"))
+            if pairs.empty:
+                continue
+            a = pairs["scored"].to_numpy() * now.scale
+            b = pairs["scored_ref"].to_numpy() * now.scale
+            p = "-" if np.array_equal(a, b) else f"{paired_p(a, b):.2g}"
+            lines.append(f"{row.label:<28} {k:>5} {b.mean():>8.2f} {a.mean():>8.2f} "
+                         f"{int((a < b).sum())}/{len(a):<5} {p:>8}")  # fmt: skip
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("-d", "--dataset", required=True)
@@ -61,12 +88,20 @@ def main() -> None:
     parser.add_argument("--reference", default="gauss")
     parser.add_argument("--metric", default=None)
     parser.add_argument("--workspace", default=None)
+    parser.add_argument("--before", default=None, help="another workspace to compare rows with")
     args = parser.parse_args()
     tracker = Tracker(make_settings(workspace=args.workspace))
     board = build_board(tracker, args.dataset, args.split, args.reference, args.metric)
     if board is None or board.scored is None:
         raise SystemExit(f"no runs of {args.dataset}-{args.split} in this store")
     print("\n".join(compare(board, args.reference)))
+    if args.before:
+        before = build_board(Tracker(make_settings(workspace=args.before)), args.dataset,
+                             args.split, args.reference, args.metric)  # fmt: skip
+        if before is None or before.scored is None:
+            raise SystemExit(f"no runs of {args.dataset}-{args.split} in {args.before}")
+        print()
+        print("\n".join(compare_before(board, before)))
 
 
 if __name__ == "__main__":
