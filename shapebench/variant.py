@@ -64,9 +64,12 @@ def make_variant(
 ) -> Variant:
     """The row a run belongs to. ``training`` is the training identity without the seed (seeds
     are samples of one row, not rows); ``train_data`` the dataset's training fingerprint;
-    ``weights`` the origin of shipped weights (``reference:<digest>``, see
-    :mod:`shapebench.reference_checkpoints`), ``"local"`` for a local training of a key that
-    has shipped weights (labelled ``weights=local``), None for any other local training."""
+    ``weights`` is ``"local"`` for a local training of a key that has shipped weights
+    (:mod:`shapebench.reference_checkpoints`): a row of its own, labelled ``weights=local``, so
+    that a retrained seed never sits beside the shipped training of the same seed. The shipped
+    weights themselves (``reference:<digest>``, recorded in each cell's key) belong to the plain
+    row: the same configuration, trained on another machine, as the other seeds of that row may
+    be."""
     identity = {
         "method": method_config,
         "training": training,
@@ -74,7 +77,7 @@ def make_variant(
         "checkpoint_file": checkpoint_file,
         "context_normals": protocol.context_normals,
     }
-    if weights and weights != "local":  # rows of local trainings keep the keys they always had
+    if weights == "local":  # the row beside the reference's (see below); other rows keep their keys
         identity["weights"] = weights
     key = stable_hash(identity)
     overrides: dict[str, Any] = dict(option_overrides)
