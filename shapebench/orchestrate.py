@@ -159,6 +159,7 @@ def seed_plans(
         seed_method = apply_trainer(method, trainer) if method.cls.trains else method
         checkpoint: dict[str, Any] = {}
         training = None
+        origin = None  # of the weights: see shapebench.reference_checkpoints
         if method.cls.trains:
             if req.checkpoint:
                 checkpoint["key"] = _given_checkpoint_key(req.checkpoint)
