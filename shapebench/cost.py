@@ -20,8 +20,10 @@ import pandas as pd
 #: Columns :func:`row_costs` returns, besides ``variant``.
 COST_COLUMNS = [
     "seconds_per_object", "train_device_hours", "train_wall_seconds", "train_device",
-    "train_epochs", "train_final_loss", "trainings",
+    "train_epochs", "train_final_loss", "train_weights", "trainings",
 ]  # fmt: skip
+#: The tag of a training run whose weights are a shipped reference checkpoint.
+REFERENCE_TAG = "shapebench.reference"
 
 
 def device_count(device: str) -> int:
@@ -45,6 +47,8 @@ class TrainingCost:
     device_hours: float = math.nan
     epochs: float = math.nan
     final_loss: float = math.nan
+    #: "reference" (shipped weights, see shapebench.reference_checkpoints) or "local".
+    weights: str = "local"
 
     @classmethod
     def from_run(cls, run: Any) -> TrainingCost:
@@ -55,7 +59,8 @@ class TrainingCost:
         hours = metrics.get("summary/device_hours", device_hours(wall, device_count(device)))
         return cls(run.info.run_id, wall, device, float(hours),
                    float(metrics.get("summary/epochs", math.nan)),
-                   float(metrics.get("summary/final_loss", math.nan)))  # fmt: skip
+                   float(metrics.get("summary/final_loss", math.nan)),
+                   "reference" if tags.get(REFERENCE_TAG) else "local")  # fmt: skip
 
 
 def training_costs(client: Any, run_ids: list[str]) -> dict[str, TrainingCost]:
@@ -89,16 +94,19 @@ def row_costs(client: Any, runs: pd.DataFrame, per_object: pd.DataFrame) -> pd.D
                        train_wall_seconds=float(table["wall_seconds"].mean()),
                        train_device=", ".join(sorted(set(table["device"]) - {""})),
                        train_epochs=float(table["epochs"].mean()),
-                       train_final_loss=float(table["final_loss"].mean()))  # fmt: skip
+                       train_final_loss=float(table["final_loss"].mean()),
+                       train_weights=", ".join(sorted(set(table["weights"]))))  # fmt: skip
         rows.append(row)
     out = pd.DataFrame(rows, columns=["variant", *COST_COLUMNS])
-    out["train_device"] = out["train_device"].astype(object).fillna("")
+    for column in ("train_device", "train_weights"):
+        out[column] = out[column].astype(object).fillna("")
     return out
 
 
 def describe_training(cost: pd.Series | dict, hours: bool = True) -> str:
     """``0.05 device-h (181 s on cpu x1), 100 epochs, loss 0.0216`` (without the device-hours
-    when ``hours`` is false), or ``–`` when it did not train (or its training run is gone)."""
+    when ``hours`` is false; ``, reference weights`` when the weights were shipped), or ``–``
+    when it did not train (or its training run is gone)."""
     dh = cost.get("train_device_hours", math.nan)
     if dh is None or not np.isfinite(dh):
         return "–"
@@ -108,6 +116,8 @@ def describe_training(cost: pd.Series | dict, hours: bool = True) -> str:
         text += f", {cost['train_epochs']:.0f} epochs"
     if np.isfinite(cost.get("train_final_loss", math.nan)):
         text += f", loss {cost['train_final_loss']:.3g}"
+    if "reference" in str(cost.get("train_weights") or ""):
+        text += f", {cost['train_weights']} weights"
     return text
 
 

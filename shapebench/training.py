@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from shapebench.config import Settings
+from shapebench.cost import REFERENCE_TAG
 from shapebench.dataset import Dataset
 from shapebench.errors import ShapebenchError
 from shapebench.hashing import stable_hash
@@ -322,7 +323,7 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
     tracker = Tracker(settings)
     exp = tracker.experiment_id(training_experiment_name(dataset.name))
     tags = {"shapebench.kind": TRAINING_KIND, "method": method.name, "dataset": dataset.name,
-            "checkpoint_key": key, "shapebench.reference": reference.origin,
+            "checkpoint_key": key, REFERENCE_TAG: reference.origin,
             "training_device": str(summary.get("device", ""))}  # fmt: skip
     run_id = tracker.start_run(exp, f"reference {method.name} on {dataset.name} "
                                     f"seed={trainer.seed}", tags)  # fmt: skip
