@@ -468,7 +468,7 @@ def render_markdown(
             "**Cost**: test time is the method's wall time per successfully completed object "
             "(mean over the row's cells); training is per training run (mean over the row's "
             "seeds): device-hours = devices x wall time, with the device, epochs and final loss. "
-            "\"reference weights\": the row used the checkpoint shipped with shapebench for its "
+            '"reference weights": the row used the checkpoint shipped with shapebench for its '
             "key (trained once, elsewhere; the cost is that training's), not a local training.",
         ]
     if figures:

@@ -60,13 +60,17 @@ def _make_reference(sb, root) -> refs.Reference:
     return ref
 
 
-@pytest.mark.slow
-def test_a_run_uses_the_reference_of_its_key_and_retrain_trains(shapebench, tmp_path):
-    sb = shapebench
+@pytest.fixture
+def with_reference(shapebench, tmp_path):
+    """The CLI runner, reading references from a folder that holds the small IGR's."""
     root = tmp_path / "refs"
-    sb.extra_env["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = str(root)
-    ref = _make_reference(sb, root)
+    shapebench.extra_env["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = str(root)
+    return shapebench, _make_reference(shapebench, root)
 
+
+@pytest.mark.slow
+def test_a_run_uses_the_reference_of_its_key_and_retrain_trains(with_reference):
+    sb, ref = with_reference
     used = sb(*RUN)
     assert used.returncode == 0, used.stderr
     assert "using the reference checkpoint" in used.stderr
@@ -95,12 +99,8 @@ def test_a_run_uses_the_reference_of_its_key_and_retrain_trains(shapebench, tmp_
 
 
 @pytest.mark.slow
-def test_a_reference_of_another_key_or_a_damaged_one_is_not_used(shapebench, tmp_path):
-    sb = shapebench
-    root = tmp_path / "refs"
-    sb.extra_env["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = str(root)
-    ref = _make_reference(sb, root)
-
+def test_a_reference_of_another_key_or_a_damaged_one_is_not_used(with_reference):
+    sb, ref = with_reference
     other = sb(*RUN, "-O", "epochs=3")  # another key: trains
     assert other.returncode == 0, other.stderr
     assert "using the reference" not in other.stderr
