@@ -6,7 +6,7 @@ wins against the reference, the two-sided Wilcoxon signed-rank p-value over the 
 (object, seed) pairs, and each row's ratio of means from the smallest to the largest context.
 
     .venv/bin/python benchmarks/paired_vs_reference.py -d synthetic --split trained \
-        --reference gauss [--workspace shapebench-runs] [--before OTHER_WORKSPACE]
+        --reference gauss [--workspace shapebench-runs] [--before OTHER_WORKSPACE] [--by-seed]
 
 With ``--before``, it also compares every row with the row of the same label in another
 workspace's store (an earlier version of the same benchmark: same objects and context points),
@@ -58,6 +58,20 @@ def compare(board, reference: str) -> list[str]:
     return lines
 
 
+def by_seed(board) -> list[str]:
+    """Each row's mean at each context size, per seed: the spread across training seeds."""
+    scored = board.scored
+    lines = [f"{board.dataset}/{board.split}, mean {board.metric} x{board.scale:g} per seed",
+             f"{'row':<28} {'k':>5}  means by seed"]  # fmt: skip
+    for row in board.rows:
+        mine = scored[scored["variant"] == row.variant]
+        for k in board.contexts:
+            means = mine[mine["context"] == k].groupby("seed")["scored"].mean() * board.scale
+            text = "  ".join(f"{seed}: {m:.2f}" for seed, m in means.items())
+            lines.append(f"{row.label:<28} {k:>5}  {text}")
+    return lines
+
+
 def compare_before(now, before) -> list[str]:
     """Each row of ``now`` against the row of the same label in ``before``, per context size."""
     old = {r.label: r.variant for r in before.rows}
@@ -89,12 +103,16 @@ def main() -> None:
     parser.add_argument("--metric", default=None)
     parser.add_argument("--workspace", default=None)
     parser.add_argument("--before", default=None, help="another workspace to compare rows with")
+    parser.add_argument("--by-seed", action="store_true", help="also each row's means per seed")
     args = parser.parse_args()
     tracker = Tracker(make_settings(workspace=args.workspace))
     board = build_board(tracker, args.dataset, args.split, args.reference, args.metric)
     if board is None or board.scored is None:
         raise SystemExit(f"no runs of {args.dataset}-{args.split} in this store")
     print("\n".join(compare(board, args.reference)))
+    if args.by_seed:
+        print()
+        print("\n".join(by_seed(board)))
     if args.before:
         before = build_board(Tracker(make_settings(workspace=args.before)), args.dataset,
                              args.split, args.reference, args.metric)  # fmt: skip
