@@ -3,7 +3,8 @@
 An ordering claim ("IGR beats Gauss densification at 50 points") is only made with its paired
 test: for each row and context size this prints the mean and median, how many objects the row
 wins against the reference, the two-sided Wilcoxon signed-rank p-value over the shared
-(object, seed) pairs, and each row's ratio of means from the smallest to the largest context.
+(object, seed) pairs; then each row at its smallest against its largest context size, paired the
+same way (objects lower at the largest, p, the ratios of means and of medians).
 
     .venv/bin/python benchmarks/paired_vs_reference.py -d synthetic --split trained \
         --reference gauss [--workspace shapebench-runs] [--before OTHER_WORKSPACE] [--by-seed]
@@ -48,13 +49,31 @@ def compare(board, reference: str) -> list[str]:
             p = "-" if row.variant == ref else f"{paired_p(a, b):.2g}"
             lines.append(f"{labels[row.variant]:<28} {k:>5} {a.mean():>8.2f} "
                          f"{np.median(a):>8.2f} {wins:>7} {p:>8}")  # fmt: skip
+    return lines + more_points(board)
+
+
+def more_points(board) -> list[str]:
+    """Each row at its smallest against its largest context size, paired over the same
+    (object, seed): does the row improve with more points, and is the change in the mean the
+    typical object's (median ratio) or a few objects' (the tail)?"""
+    scored = board.scored
     lo, hi = min(board.contexts), max(board.contexts)
-    lines.append(f"ratio of means, k={lo} / k={hi}:")
+    head = f"{'row':<28} {'lower':>7} {'p':>8} {'ratio of means':>15} {'of medians':>11}"
+    lines = [f"k={lo} against k={hi} (lower: objects lower at k={hi}; ratios: k={lo} / k={hi})",
+             head]  # fmt: skip
     for row in board.rows:
         mine = scored[scored["variant"] == row.variant]
-        means = mine.groupby("context")["scored"].mean()
-        if lo in means and hi in means and means[hi] > 0:
-            lines.append(f"  {labels[row.variant]:<26} {means[lo] / means[hi]:.2f}")
+        small, large = mine[mine["context"] == lo], mine[mine["context"] == hi]
+        pairs = small.merge(large, on=["object", "seed"], suffixes=("", "_hi"))
+        if pairs.empty:
+            continue
+        a, b = pairs["scored"].to_numpy(), pairs["scored_hi"].to_numpy()
+        if b.mean() <= 0 or np.median(b) <= 0:
+            continue
+        ratios = f"{a.mean() / b.mean():>15.2f} {np.median(a) / np.median(b):>11.2f}"
+        lines.append(
+            f"{row.label:<28} {int((b < a).sum())}/{len(a):<5} {paired_p(a, b):>8.2g} " + ratios
+        )
     return lines
 
 

@@ -11,7 +11,10 @@ store. Runs are matched by what identifies them, never by run id:
 so merging the same store twice, or two stores holding the same cell, adds each run once. Only
 FINISHED cells and trainings are imported (an unfinished one is work to redo); the copy keeps the
 source's tags, params, metric histories (with their steps and timestamps), start and end times
-and artifacts, and records where it came from (tag ``shapebench.merged_from``).
+and artifacts, and records where it came from (tag ``shapebench.merged_from``). A copied cell's
+``training_run_id`` is re-pointed at the target's run of the same training (copied, or already
+there under its checkpoint key): run ids mean nothing across stores, and the leaderboard's cost
+column reads that tag.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from typing import Any
 from shapebench.errors import ShapebenchError
 from shapebench.tracking import CELL_KIND, PARENT_KIND, TRAINING_KIND
 
+#: The tag of a cell naming the training run its checkpoint came from.
+TRAINING_RUN_TAG = "training_run_id"
 #: The tag that identifies each kind of run across stores.
 IDENTITY = {
     CELL_KIND: "shapebench.cell_key",
@@ -87,14 +92,20 @@ def merge_stores(
 
 def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
                report: MergeReport) -> None:  # fmt: skip
+    # Trainings first (their experiment may come after the cells'), so that a copied cell can
+    # name its training's run in the target; within an experiment, parents before children.
+    order = {TRAINING_KIND: 0, PARENT_KIND: 1}
+    batches = []
     for exp in source.search_experiments():
         runs = source.search_runs([exp.experiment_id], max_results=50000)
-        if not runs:
-            continue
+        if runs:
+            batches.append((exp, runs))
+    batches.sort(key=lambda b: min(order.get(r.data.tags.get("shapebench.kind", ""), 2)
+                                   for r in b[1]))  # fmt: skip
+    parents: dict[str, str] = {}  # source run id -> target run id, for trainings and parents
+    for exp, runs in batches:
         target_exp = _experiment(target, target_uri, exp.name)
-        # Parents first, so that children can point at their merged parent.
-        runs.sort(key=lambda r: r.data.tags.get("shapebench.kind") != PARENT_KIND)
-        parents: dict[str, str] = {}
+        runs.sort(key=lambda r: order.get(r.data.tags.get("shapebench.kind", ""), 2))
         for run in runs:
             kind = run.data.tags.get("shapebench.kind", "")
             if kind not in IDENTITY:
@@ -109,7 +120,9 @@ def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
                 report.present[kind] = report.present.get(kind, 0) + 1
                 continue
             parent = parents.get(run.data.tags.get("mlflow.parentRunId", ""))
-            parents[run.info.run_id] = _copy(source, target, target_exp, run, source_uri, parent)
+            training = parents.get(run.data.tags.get(TRAINING_RUN_TAG, ""))
+            parents[run.info.run_id] = _copy(source, target, target_exp, run, source_uri, parent,
+                                             training)  # fmt: skip
             report.added[kind] = report.added.get(kind, 0) + 1
 
 
@@ -136,13 +149,15 @@ def _find(client: Any, exp_id: str, kind: str, key: str, run: Any) -> str | None
 
 
 def _copy(source: Any, target: Any, exp_id: str, run: Any, source_uri: str,
-          parent: str | None) -> str:  # fmt: skip
+          parent: str | None, training: str | None = None) -> str:  # fmt: skip
     from mlflow.entities import Metric, Param
 
     tags = {k: v for k, v in run.data.tags.items() if k != "mlflow.parentRunId"}
     tags[MERGED_FROM] = f"{source_uri}#{run.info.run_id}"
     if parent:
         tags["mlflow.parentRunId"] = parent
+    if training:
+        tags[TRAINING_RUN_TAG] = training
     new = target.create_run(exp_id, start_time=run.info.start_time, tags=tags,
                             run_name=run.info.run_name)  # fmt: skip
     run_id = new.info.run_id

@@ -43,3 +43,44 @@ def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
 def test_merge_names_a_missing_store(shapebench, tmp_path):
     res = shapebench("merge", str(tmp_path / "nowhere"))
     assert res.returncode == 2 and "no MLflow store at" in res.stderr
+
+
+SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
+             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
+             "-O", "mesh_resolution=24"]  # fmt: skip
+
+
+def test_merged_cells_name_the_target_stores_training(shapebench, tmp_path):
+    """A merged cell's training_run_id is the target's run of its training, whether the merge
+    copied that training or found it there (run ids mean nothing across stores), so the
+    leaderboard's cost column still shows it."""
+    sb = shapebench
+
+    def igr(client_sb, contexts: str):
+        res = client_sb("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split",
+                        "novel", "--contexts", contexts, "-q", "--retrain")  # fmt: skip
+        assert res.returncode == 0, res.stderr[-3000:]
+
+    jobs = []
+    for i in range(2):
+        job = type(sb)(tmp_path / f"job{i}", sb.cache)
+        job.workspace.mkdir()
+        jobs.append(job)
+    igr(jobs[0], "50")
+    igr(jobs[1], "100")  # the same training, in a store of its own
+    assert sb("merge", str(jobs[0].workspace)).returncode == 0  # copies the training
+    assert sb("merge", str(jobs[1].workspace)).returncode == 0  # finds it there
+
+    client = sb.client()
+    exp = client.get_experiment_by_name("training/synthetic")
+    (training,) = client.search_runs([exp.experiment_id])
+    cells = sb.cell_runs("synthetic-novel")
+    assert sorted(r.data.tags["context_size"] for r in cells) == ["100", "50"]
+    assert {r.data.tags["training_run_id"] for r in cells} == {training.info.run_id}
+
+    board = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--out",
+               str(tmp_path / "boards"))  # fmt: skip
+    assert board.returncode == 0, board.stderr[-3000:]
+    table = (tmp_path / "boards" / "synthetic-novel.md").read_text()
+    igr_row = next(line for line in table.splitlines() if line.startswith("| IGR"))
+    assert "device-h" in igr_row, igr_row
