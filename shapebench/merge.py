@@ -26,17 +26,23 @@ from pathlib import Path
 from typing import Any
 
 from shapebench.errors import ShapebenchError
+from shapebench.records import CELL_KEY_TAG, KIND_TAG, TRAINING_RUN_TAG
 from shapebench.tracking import CELL_KIND, PARENT_KIND, TRAINING_KIND
 
-#: The tag of a cell naming the training run its checkpoint came from.
-TRAINING_RUN_TAG = "training_run_id"
 #: The tag that identifies each kind of run across stores.
 IDENTITY = {
-    CELL_KIND: "shapebench.cell_key",
+    CELL_KIND: CELL_KEY_TAG,
     TRAINING_KIND: "checkpoint_key",
     PARENT_KIND: "shapebench.parent_key",
 }
 MERGED_FROM = "shapebench.merged_from"
+#: The order runs are merged in: trainings first (their experiment may come after the cells'),
+#: so that a copied cell can name its training's run in the target; parents before children.
+_ORDER = {TRAINING_KIND: 0, PARENT_KIND: 1}
+
+
+def _rank(run: Any) -> int:
+    return _ORDER.get(run.data.tags.get(KIND_TAG, ""), 2)
 
 
 @dataclass
@@ -92,22 +98,17 @@ def merge_stores(
 
 def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
                report: MergeReport) -> None:  # fmt: skip
-    # Trainings first (their experiment may come after the cells'), so that a copied cell can
-    # name its training's run in the target; within an experiment, parents before children.
-    order = {TRAINING_KIND: 0, PARENT_KIND: 1}
     batches = []
     for exp in source.search_experiments():
-        runs = source.search_runs([exp.experiment_id], max_results=50000)
+        runs = sorted(source.search_runs([exp.experiment_id], max_results=50000), key=_rank)
         if runs:
             batches.append((exp, runs))
-    batches.sort(key=lambda b: min(order.get(r.data.tags.get("shapebench.kind", ""), 2)
-                                   for r in b[1]))  # fmt: skip
-    parents: dict[str, str] = {}  # source run id -> target run id, for trainings and parents
+    batches.sort(key=lambda batch: _rank(batch[1][0]))
+    merged: dict[str, str] = {}  # source run id -> target run id (trainings and parents)
     for exp, runs in batches:
         target_exp = _experiment(target, target_uri, exp.name)
-        runs.sort(key=lambda r: order.get(r.data.tags.get("shapebench.kind", ""), 2))
         for run in runs:
-            kind = run.data.tags.get("shapebench.kind", "")
+            kind = run.data.tags.get(KIND_TAG, "")
             if kind not in IDENTITY:
                 continue
             if kind != PARENT_KIND and run.info.status != "FINISHED":
@@ -116,13 +117,13 @@ def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
             key = run.data.tags.get(IDENTITY[kind], "")
             existing = _find(target, target_exp, kind, key, run)
             if existing is not None:
-                parents[run.info.run_id] = existing
+                merged[run.info.run_id] = existing
                 report.present[kind] = report.present.get(kind, 0) + 1
                 continue
-            parent = parents.get(run.data.tags.get("mlflow.parentRunId", ""))
-            training = parents.get(run.data.tags.get(TRAINING_RUN_TAG, ""))
-            parents[run.info.run_id] = _copy(source, target, target_exp, run, source_uri, parent,
-                                             training)  # fmt: skip
+            parent = merged.get(run.data.tags.get("mlflow.parentRunId", ""))
+            training = merged.get(run.data.tags.get(TRAINING_RUN_TAG, ""))
+            merged[run.info.run_id] = _copy(source, target, target_exp, run, source_uri, parent,
+                                            training)  # fmt: skip
             report.added[kind] = report.added.get(kind, 0) + 1
 
 

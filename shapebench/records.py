@@ -26,6 +26,8 @@ FORMAT = "1"
 
 KIND_TAG = "shapebench.kind"
 CELL_KEY_TAG = "shapebench.cell_key"
+#: The tag of a cell naming the training run its checkpoint came from.
+TRAINING_RUN_TAG = "training_run_id"
 METRIC_ERRORS_TAG = "shapebench.metric_errors"
 EVAL_POINTS_ACTUAL_TAG = "eval_points.actual"
 CARD_PREFIX = "card."
@@ -46,7 +48,7 @@ _TAGS = {
     "plugin_version": "plugin.version",
     "git_commit": "git_commit",
     "checkpoint_key": "checkpoint_key",
-    "training_run_id": "training_run_id",
+    "training_run_id": TRAINING_RUN_TAG,
     "frame": "protocol.frame",
     "variant_key": "variant.key",
     "variant_label": "variant.label",

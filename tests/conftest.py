@@ -25,6 +25,10 @@ TINY = [
     "-D", "surface_candidates=3000", "-D", "gt_points=2000",
 ]  # fmt: skip
 TINY_CONTEXTS = ["--contexts", "50,100"]
+#: A small IGR that trains in seconds (2 epochs of a 2 x 32 network), for CLI tests.
+SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
+             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
+             "-O", "mesh_resolution=24"]  # fmt: skip
 
 
 def pip_install_to(target: Path, project: Path) -> Path:

@@ -5,13 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import TINY
+from conftest import SMALL_IGR, TINY
 
 pytestmark = pytest.mark.slow  # runs the CLI in subprocesses
-
-SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
-             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
-             "-O", "mesh_resolution=24"]  # fmt: skip
 
 
 def _values(sb, k: int, label_runs) -> pd.Series:

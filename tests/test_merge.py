@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import TINY
+from conftest import SMALL_IGR, TINY
 
 pytestmark = pytest.mark.slow  # runs the CLI
 
@@ -45,20 +45,15 @@ def test_merge_names_a_missing_store(shapebench, tmp_path):
     assert res.returncode == 2 and "no MLflow store at" in res.stderr
 
 
-SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
-             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
-             "-O", "mesh_resolution=24"]  # fmt: skip
-
-
 def test_merged_cells_name_the_target_stores_training(shapebench, tmp_path):
     """A merged cell's training_run_id is the target's run of its training, whether the merge
     copied that training or found it there (run ids mean nothing across stores), so the
     leaderboard's cost column still shows it."""
     sb = shapebench
 
-    def igr(client_sb, contexts: str):
-        res = client_sb("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split",
-                        "novel", "--contexts", contexts, "-q", "--retrain")  # fmt: skip
+    def igr(job, contexts: str):
+        res = job("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split",
+                  "novel", "--contexts", contexts, "-q", "--retrain")  # fmt: skip
         assert res.returncode == 0, res.stderr[-3000:]
 
     jobs = []

@@ -8,13 +8,10 @@ import shutil
 
 import pandas as pd
 import pytest
-from conftest import TINY
+from conftest import SMALL_IGR, TINY
 
 from shapebench import reference_checkpoints as refs
 
-SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
-             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
-             "-O", "mesh_resolution=24"]  # fmt: skip
 RUN = ("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split", "novel",
        "--contexts", "50", "-q")  # fmt: skip
 
