@@ -73,21 +73,37 @@ def stats(values: list[float]) -> str:
 
 
 def search(method, objects: list[ObjectData], contexts: list[Context]):
-    """Completions of the contexts (batched as the runner does) and the codes found."""
-    codes = list(method.encode(contexts))
-    scores = []
-    for code, data, ctx in zip(codes, objects, contexts, strict=True):
-        try:
-            result: Completion | Exception = method.decode(code, ctx, len(data.gt_points))
-        except Exception as exc:  # an object that does not mesh counts as failed
-            result = exc
-        scores.append(chamfer_x1000(result, data, ctx))
+    """Completions of the contexts made as the runner makes them (one batch through
+    ``complete_batch``, which seeds the test-time draws from the contexts), and the codes found.
+
+    The codes are recorded on their way from ``encode`` to ``decode``: completing by hand instead
+    would leave torch's generator where earlier work put it, and the 50-point searches then
+    differ from run to run by more than the settings compared.
+    """
+    sizes = {len(d.gt_points) for d in objects}
+    if len(sizes) != 1:
+        raise SystemExit(f"objects with different gt_points counts {sorted(sizes)}")
+    codes: list = []
+    encode = method.encode
+
+    def recorded(ctxs: list[Context]):
+        found = encode(ctxs)
+        codes.extend(found)
+        return found
+
+    method.encode = recorded
+    try:
+        results: list[Completion | Exception] = method.complete_batch(contexts, sizes.pop())
+    finally:
+        del method.encode  # back to the class's method
+    scores = [chamfer_x1000(r, d, c) for r, d, c in zip(results, objects, contexts, strict=True)]
     # MSC's codes are (posterior mean, variance) pairs: the mean is the code
     codes = [c[0] if isinstance(c, tuple) else c for c in codes]
     return scores, torch.stack([torch.as_tensor(c) for c in codes])
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
+    """Print the table; return its search rows as (label, k, per-object scores)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--method", "-m", required=True)
     parser.add_argument("--checkpoint", required=True, type=Path)
@@ -130,6 +146,7 @@ def main(argv: list[str] | None = None) -> None:
     base = method.options  # the recipe applied
     table = trained_codes(method.module)
     own = None
+    rows: list[tuple[str, int, list[float]]] = []
     print(f"{'row':<28} {'k':>5} {'mean':>9} {'median':>8}    code dist  seconds")
     if table is not None:
         if len(table) != len(train_refs):
@@ -156,6 +173,7 @@ def main(argv: list[str] | None = None) -> None:
                 method.options = replace(base, opt_steps=s)
                 start = time.perf_counter()
                 scores, codes = search(method, objs, ctxs)
+                rows.append((f"{label} {s} steps", k, scores))
                 to_own = objs is train_objs and own is not None
                 dist = ((codes - own) if to_own else codes).norm(dim=1).mean().item()
                 what = "to trained" if to_own else "norm"
@@ -163,6 +181,7 @@ def main(argv: list[str] | None = None) -> None:
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
             if objs is not train_objs:
                 print(f"{'gauss, ' + args.split:<28} {k:>5} {stats(gauss_scores(objs, ctxs))}")
+    return rows
 
 
 if __name__ == "__main__":

@@ -167,10 +167,12 @@ def seed_plans(
                 checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
                 training = training_identity(seed_method, trainer)
                 checkpoint["training"] = training
-                origin = weights_origin(settings, seed_method, checkpoint["key"], req.retrain)
+                reference = find_reference(seed_method, checkpoint["key"])
+                origin = weights_origin(settings, seed_method, checkpoint["key"], req.retrain,
+                                        reference)  # fmt: skip
                 if origin:  # shipped weights are not those a local training would give
                     checkpoint["weights"] = origin
-                elif find_reference(seed_method, checkpoint["key"]) is not None:
+                elif reference is not None:
                     origin = "local"  # a row beside the reference's: its label says so
         variant = _variant(seed_method, dataset, req, settings, trainer, training, origin)
         plan = RunPlan(

@@ -25,7 +25,7 @@ import time
 import warnings
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from shapebench.config import Settings
 from shapebench.cost import REFERENCE_TAG
@@ -35,6 +35,9 @@ from shapebench.hashing import stable_hash
 from shapebench.method import TrainerOptions, TrainingContext
 from shapebench.resolve import ResolvedMethod
 from shapebench.tracking import TRAINING_KIND, Tracker, flatten, training_experiment_name
+
+if TYPE_CHECKING:
+    from shapebench.reference_checkpoints import Reference
 
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 #: The pid of the process that started this training and waits for it (see watch_parent).
@@ -274,7 +277,7 @@ def _training_params(method: ResolvedMethod, dataset: Dataset, trainer: TrainerO
                         "dataset": dataset.config()})  # fmt: skip
 
 
-def find_reference(method: ResolvedMethod, key: str):
+def find_reference(method: ResolvedMethod, key: str) -> Reference | None:
     """The shipped reference checkpoint of ``method`` for ``key``, or None."""
     from shapebench.reference_checkpoints import find
 
@@ -282,11 +285,12 @@ def find_reference(method: ResolvedMethod, key: str):
 
 
 def weights_origin(
-    settings: Settings, method: ResolvedMethod, key: str, retrain: bool
+    settings: Settings, method: ResolvedMethod, key: str, retrain: bool, reference: Reference | None
 ) -> str | None:
     """Where the weights of ``key`` come (or will come) from, as cells and rows record it:
     ``reference:<digest>`` for a shipped reference checkpoint, None for a local training.
-    Read before any training, from the workspace's ``done.json`` or the reference folder."""
+    Read before any training, from the workspace's ``done.json``, else from ``reference`` (what
+    :func:`find_reference` gave for ``key``, or None)."""
     if retrain:
         return None
     try:
@@ -294,7 +298,6 @@ def weights_origin(
         return record.get("weights") if isinstance(record, dict) else None
     except (OSError, ValueError):
         pass
-    reference = find_reference(method, key)
     return None if reference is None else reference.origin
 
 
