@@ -210,12 +210,9 @@ def train_here(
         lock = wait_lock(lock_path(workdir), waiting)
     try:
         if lead:
-            record = _reusable(read_done(workdir), workdir, retrain)
-            if record is not None:  # trained by the process we waited for
+            record = _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain)
+            if record is not None:  # trained by the process we waited for, or shipped
                 return record
-            reference = None if retrain else find_reference(method, key)
-            if reference is not None:
-                return _use_reference(reference, method, dataset, trainer, settings, key, workdir)
         return _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id)
     finally:
         if lock is not None:
@@ -311,6 +308,18 @@ def _reusable(record: dict[str, Any] | None, workdir: Path, retrain: bool) -> di
     return record
 
 
+def _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain):
+    """With the key's lock held: the record of a finished training (or install) of ``key``, else
+    its shipped reference checkpoint installed (unless ``retrain``), else None (train it)."""
+    record = _reusable(read_done(workdir), workdir, retrain)
+    if record is not None:
+        return record
+    reference = None if retrain else find_reference(method, key)
+    if reference is None:
+        return None
+    return _use_reference(reference, method, dataset, trainer, settings, key, workdir)
+
+
 def _use_reference(reference, method, dataset, trainer, settings, key, workdir) -> dict[str, Any]:
     """Install ``reference`` as the checkpoint of ``key`` and log it as a training run (its
     cost and loss terms are those of the reference training); the caller holds the key's lock."""
@@ -368,18 +377,15 @@ def ensure_checkpoint(
     record = _reusable(read_done(workdir), workdir, retrain)
     if record is not None:
         return record
-    reference = None if retrain else find_reference(method, key)
-    if reference is not None:
+    if not retrain and find_reference(method, key) is not None:  # installed here, no child
         workdir.mkdir(parents=True, exist_ok=True)
         lock = wait_lock(lock_path(workdir), lambda holder: None)
         try:  # another process may have installed (or trained) it while we waited
-            record = read_done(workdir)
-            if record is None:
-                record = _use_reference(reference, method, dataset, trainer, settings, key,
-                                        workdir)  # fmt: skip
-            return record
+            record = _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain)
         finally:
             lock.release()
+        if record is not None:
+            return record
     cmd = [
         sys.executable,
         "-m",
