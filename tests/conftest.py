@@ -7,6 +7,7 @@ put on PYTHONPATH (a real install with real entry-point metadata, without touchi
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import socket
 import subprocess
@@ -29,6 +30,18 @@ TINY_CONTEXTS = ["--contexts", "50,100"]
 SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
              "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
              "-O", "mesh_resolution=24"]  # fmt: skip
+
+
+def load_benchmark(name: str):
+    """The script ``benchmarks/<name>.py`` as a module, so tests call its ``main`` in-process.
+
+    Registered in ``sys.modules`` first: dataclasses look their module up while the file runs.
+    """
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 def pip_install_to(target: Path, project: Path) -> Path:

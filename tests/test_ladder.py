@@ -3,22 +3,12 @@ synthetic training shape and then completes it far better than its untrained net
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 
 import pytest
-from conftest import ROOT
+from conftest import load_benchmark
 
 pytestmark = pytest.mark.slow  # trains IGR for 150 steps
-
-
-def _ladder():
-    spec = importlib.util.spec_from_file_location("ladder", ROOT / "benchmarks" / "ladder.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["ladder"] = module  # dataclasses look their module up while the file runs
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_rung_a_igr_learns_one_shape(data_cache):
@@ -27,9 +17,10 @@ def test_rung_a_igr_learns_one_shape(data_cache):
     net = ["latent_dim=8", "width=64", "depth=2", "surface_points=256", "mesh_resolution=32",
            "opt_steps=10"]  # fmt: skip
     tiny = [a for d in data for a in ("-D", d)] + [a for o in net for a in ("-O", o)]
-    (result,) = _ladder().main(["-m", "igr", "--rungs", "a", "--steps", "150", "--category",
-                                "bottle", "--eval-objects", "1", "--accelerator", "cpu",
-                                "--cache-dir", str(data_cache), *tiny])  # fmt: skip
+    ladder = load_benchmark("ladder")
+    (result,) = ladder.main(["-m", "igr", "--rungs", "a", "--steps", "150", "--category",
+                             "bottle", "--eval-objects", "1", "--accelerator", "cpu",
+                             "--cache-dir", str(data_cache), *tiny])  # fmt: skip
     assert result.steps == 150 and result.failures == 0
     assert not math.isnan(result.trained)
     # The untrained decoder is a unit sphere, far from a bottle; a network that does not learn
