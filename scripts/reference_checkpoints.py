@@ -107,8 +107,9 @@ def main(argv: list[str] | None = None) -> None:
         if record is None:
             print(f"{name}: training key {key} ({' '.join(command)})", flush=True)
             start = time.perf_counter()
-            subprocess.run([sys.executable, "-m", *command[1:], "--workspace", args.workspace,
-                            "--quiet"], check=True)  # fmt: skip
+            # ``python -m shapebench`` is the ``shapebench`` console script of this interpreter.
+            run = [sys.executable, "-m", "shapebench", *command[1:]]
+            subprocess.run([*run, "--workspace", args.workspace, "--quiet"], check=True)
             print(f"{name}: trained in {time.perf_counter() - start:.0f} s", flush=True)
             record = read_done(workdir)
         summary = json.loads((workdir / "summary.json").read_text())

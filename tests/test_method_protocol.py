@@ -130,19 +130,19 @@ def test_the_quick_profile_gives_the_three_the_same_test_time_optimiser():
 
 def test_igr_eikonal_sample_count_follows_the_recipe_not_the_context_size():
     assert IGR(IGR.Options(recipe="paper")).options.opt_eikonal_samples == 5000  # App. A.1's 5k
-    assert IGR(IGR.Options(recipe="official")).options.opt_eikonal_samples is None  # per point
+    assert IGR(IGR.Options(recipe="official")).options.opt_eikonal_samples == 0  # one per point
     quick = opts.build(IGR.Options, plugin_overrides("method", "igr", load_profile("quick")), "igr")
     assert IGR(quick).options.opt_eikonal_samples == 1000
     assert IGR(IGR.Options(opt_eikonal_samples=7)).options.opt_eikonal_samples == 7
     with pytest.raises(ConfigError, match="opt_eikonal_samples"):
-        opts.build(IGR.Options, {"opt_eikonal_samples": 0}, "igr")
+        opts.build(IGR.Options, {"opt_eikonal_samples": -1}, "igr")
 
 
 @pytest.mark.parametrize(("samples", "mode", "seen"), [
-    (None, "paper", 50), (300, "paper", 300), (300, "official", 300 + 300 // 8),
+    (0, "paper", 50), (None, "paper", 50), (300, "paper", 300), (300, "official", 300 + 300 // 8),
 ])  # fmt: skip
 def test_igr_completion_evaluates_the_eikonal_term_on_the_option_s_count(samples, mode, seen):
-    # The official recipe leaves the count unset (one per context point); ``offsurface`` is explicit.
+    # The official recipe's count is 0 (one per context point); ``offsurface`` is explicit.
     method = IGR(IGR.Options(recipe="official", latent_dim=8, width=32, depth=2, opt_steps=2,
                              offsurface=mode, opt_eikonal_samples=samples))  # fmt: skip
     method.module = method.build_module(1).eval()

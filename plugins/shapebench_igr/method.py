@@ -7,7 +7,7 @@ from N(0, 0.01^2) is optimised on the context points alone (|f| on them, the Eik
 them, 1e-3 * mean |z|), as the paper's protocol allows no normals or off-surface SDF at test time
 (``test_normals=true`` adds the normal term), then meshed with marching cubes. The Eikonal
 samples of each step number ``opt_eikonal_samples`` whatever the context size, so a 50-point
-context does not get a 50-sample estimate of the term (``None``: one per context point).
+context does not get a 50-sample estimate of the term (0: one per context point).
 
 Paper vs official code (``recipe``): the paper trains with lr 1e-4, lambda = 1.0 and Eikonal
 samples drawn from 5k surface points with variance 0.04; the official code uses lr 5e-3,
@@ -48,27 +48,30 @@ class IGROptions(IGRDecoderOptions):
     opt_eikonal_samples: int | None = completion_option(
         None,
         "Eikonal samples per object and step at completion, drawn around context points picked "
-        "with replacement [paper 5000, as its 5k training samples; official: one per context "
-        "point]",
+        "with replacement; 0: one per context point [paper 5000, as its 5k training samples; "
+        "official 0]",
     )
     test_normals: bool = completion_option(
         False, "use context normals at completion (the paper does not)"
     )
 
     def __post_init__(self) -> None:
-        if self.opt_eikonal_samples is not None and self.opt_eikonal_samples < 1:
+        if self.opt_eikonal_samples is not None and self.opt_eikonal_samples < 0:
             raise ConfigError(
-                f"option 'opt_eikonal_samples' of igr must be a positive count, "
+                f"option 'opt_eikonal_samples' of igr must be a count >= 0, "
                 f"got {self.opt_eikonal_samples}",
-                "leave it unset for the recipe's count, or give e.g. opt_eikonal_samples=1000",
+                "give e.g. opt_eikonal_samples=1000, or 0 for one per context point",
             )
 
 
 #: IGR's test-time Eikonal sample count per recipe. The paper evaluates the Eikonal term on 5k
 #: samples around 5k surface points (App. A.1) and says nothing about test time, so its recipe
 #: keeps that count, the base points drawn from the context with replacement. The official
-#: reconstruction moves every input point once (``NormalPerPoint``): left unset, one per point.
-EIKONAL_SAMPLES: dict[str, dict[str, int]] = {"paper": {"opt_eikonal_samples": 5000}}
+#: reconstruction moves every input point once (``NormalPerPoint``): 0, one per point.
+EIKONAL_SAMPLES: dict[str, dict[str, int]] = {
+    "paper": {"opt_eikonal_samples": 5000},
+    "official": {"opt_eikonal_samples": 0},
+}
 
 
 class IGR(ImplicitMethod):
@@ -93,5 +96,5 @@ class IGR(ImplicitMethod):
         # Context normals are read only when this option asks for them.
         nrm = require_normals(nrm, "test_normals=true", self.label) if o.test_normals else None
         z0 = initial_latents(contexts, o.latent_dim, o.init_std, self.device)
-        loss = self.module.completion_loss(pts, nrm, o.opt_eikonal_samples)
+        loss = self.module.completion_loss(pts, nrm, o.opt_eikonal_samples or None)
         return self.optimise_codes(loss, z0)
