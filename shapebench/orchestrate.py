@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,6 +58,9 @@ class EvalOutcome:
     primary_metric: str
     cells: list[CellResult]
     variant: Variant | None = None
+    #: Wall seconds of this outcome spent getting weights (training, or installing a shipped
+    #: checkpoint) rather than evaluating: progress estimates leave them out.
+    train_seconds: float = 0.0
 
     @property
     def all_failed_cells(self) -> list[CellResult]:
@@ -194,13 +198,14 @@ def evaluate(
     runner = Runner(tracker)
     cells: list[CellResult] = []
     variant = None
+    weights_seconds: list[float] = []
     for sp in seed_plans(req, resolved, settings, trainer_for_seed):
         variant = sp.variant
-        cells += runner.run(
-            sp.plan,
-            _method_factory(sp.method, resolved.dataset, req, settings, sp.trainer, sp.checkpoint),
-        )
-    return EvalOutcome(resolved.method, resolved.dataset, resolved.primary, cells, variant)
+        make = _method_factory(sp.method, resolved.dataset, req, settings, sp.trainer,
+                               sp.checkpoint, weights_seconds)  # fmt: skip
+        cells += runner.run(sp.plan, make)
+    return EvalOutcome(resolved.method, resolved.dataset, resolved.primary, cells, variant,
+                       sum(weights_seconds))  # fmt: skip
 
 
 def _variant(
@@ -243,13 +248,18 @@ def _method_factory(
     settings: Settings,
     trainer: TrainerOptions,
     checkpoint: dict[str, str],
+    weights_seconds: list[float] | None = None,
 ) -> Callable[[], Method]:
+    """The runner's method factory; the wall time of each :func:`ensure_checkpoint` (a training,
+    or a reference install) is appended to ``weights_seconds``."""
+
     def make() -> Method:
         instance = method.instantiate()
         if method.cls.trains:
             if req.checkpoint:
                 path = req.checkpoint
             else:
+                start = time.perf_counter()
                 record = ensure_checkpoint(
                     method,
                     dataset,
@@ -259,6 +269,8 @@ def _method_factory(
                     req.quiet,
                     retrain=req.retrain,
                 )
+                if weights_seconds is not None:
+                    weights_seconds.append(time.perf_counter() - start)
                 path = record["path"]
                 if record.get("run_id"):
                     checkpoint["run_id"] = record["run_id"]

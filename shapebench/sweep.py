@@ -205,14 +205,17 @@ def sweep_size(spec: SweepSpec, settings: Settings) -> int:
 
 
 class SweepProgress:
-    """``12/48 cells (4 already done), 3m12s elapsed, about 9m left`` after each run of a sweep;
-    the estimate extrapolates the time per cell computed so far."""
+    """``12/48 cells (4 already done), 3m12s elapsed (1m02s training), about 9m left`` after each
+    run of a sweep. The estimate extrapolates the evaluation time per cell computed so far; time
+    spent training is left out of it (one training can take longer than all the cells it
+    serves), so trainings still to come are not in the estimate either."""
 
     def __init__(self, total: int) -> None:
         import time
 
         self.total = total
         self.done = self.cached = 0
+        self.training = 0.0
         self.start = time.monotonic()
 
     def update(self, outcome: EvalOutcome) -> str:
@@ -220,13 +223,16 @@ class SweepProgress:
 
         self.done += len(outcome.cells)
         self.cached += sum(1 for c in outcome.cells if c.skipped)
+        self.training += getattr(outcome, "train_seconds", 0.0)
         elapsed = time.monotonic() - self.start
+        evaluating = max(elapsed - self.training, 0.0)
         computed = self.done - self.cached
         left = max(self.total - self.done, 0)
-        eta = f", about {_duration(elapsed / computed * left)} left" if computed and left else ""
+        eta = f", about {_duration(evaluating / computed * left)} left" if computed and left else ""
         already = f" ({self.cached} already done)" if self.cached else ""
+        training = f" ({_duration(self.training)} training)" if self.training >= 1 else ""
         return (f"sweep progress: {self.done}/{self.total} cells{already}, "
-                f"{_duration(elapsed)} elapsed{eta}")  # fmt: skip
+                f"{_duration(elapsed)} elapsed{training}{eta}")  # fmt: skip
 
 
 def _duration(seconds: float) -> str:

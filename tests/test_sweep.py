@@ -86,3 +86,18 @@ def test_sweep_progress_counts_cells_and_extrapolates_from_computed_ones(monkeyp
         "sweep progress: 4/8 cells (2 already done), 2m00s elapsed, about 4m00s left"
     )
     assert sweep_mod._duration(3 * 3600 + 125) == "3h02m"
+
+
+def test_sweep_progress_leaves_training_time_out_of_the_estimate(monkeypatch):
+    from types import SimpleNamespace
+
+    import shapebench.sweep as sweep_mod
+
+    clock = iter([0.0, 660.0])
+    monkeypatch.setattr("time.monotonic", lambda: next(clock))
+    progress = sweep_mod.SweepProgress(total=8)
+    # 11 minutes, 10 of them training: 2 cells evaluated in 60 s, 6 left.
+    trained = SimpleNamespace(cells=[SimpleNamespace(skipped=False)] * 2, train_seconds=600.0)
+    assert progress.update(trained) == (
+        "sweep progress: 2/8 cells, 11m00s elapsed (10m00s training), about 3m00s left"
+    )
