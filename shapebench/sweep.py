@@ -223,7 +223,7 @@ class SweepProgress:
 
         self.done += len(outcome.cells)
         self.cached += sum(1 for c in outcome.cells if c.skipped)
-        self.training += getattr(outcome, "train_seconds", 0.0)
+        self.training += outcome.train_seconds
         elapsed = time.monotonic() - self.start
         evaluating = max(elapsed - self.training, 0.0)
         computed = self.done - self.cached

@@ -134,12 +134,16 @@ def test_igr_eikonal_sample_count_follows_the_recipe_not_the_context_size():
     quick = opts.build(IGR.Options, plugin_overrides("method", "igr", load_profile("quick")), "igr")
     assert IGR(quick).options.opt_eikonal_samples == 1000
     assert IGR(IGR.Options(opt_eikonal_samples=7)).options.opt_eikonal_samples == 7
+    # The count follows the training recipe, not the test-time optimiser's (opt_recipe).
+    swapped = IGR(IGR.Options(recipe="paper", opt_recipe="official")).options
+    assert swapped.opt_eikonal_samples == 5000
     with pytest.raises(ConfigError, match="opt_eikonal_samples"):
         opts.build(IGR.Options, {"opt_eikonal_samples": -1}, "igr")
 
 
 @pytest.mark.parametrize(("samples", "mode", "seen"), [
-    (0, "paper", 50), (None, "paper", 50), (300, "paper", 300), (300, "official", 300 + 300 // 8),
+    (0, "paper", 50), (None, "paper", 50), (0, "official", 50 + 50 // 8),
+    (300, "paper", 300), (300, "official", 300 + 300 // 8),
 ])  # fmt: skip
 def test_igr_completion_evaluates_the_eikonal_term_on_the_option_s_count(samples, mode, seen):
     # The official recipe's count is 0 (one per context point); ``offsurface`` is explicit.

@@ -78,11 +78,12 @@ def test_sweep_progress_counts_cells_and_extrapolates_from_computed_ones(monkeyp
     monkeypatch.setattr("time.monotonic", lambda: next(clock))
     progress = sweep_mod.SweepProgress(total=8)
     cells = lambda skipped: [SimpleNamespace(skipped=skipped)] * 2  # noqa: E731
-    assert progress.update(SimpleNamespace(cells=cells(True))) == (
+    outcome = lambda skipped: SimpleNamespace(cells=cells(skipped), train_seconds=0.0)  # noqa: E731
+    assert progress.update(outcome(True)) == (
         "sweep progress: 2/8 cells (2 already done), 1m00s elapsed"
     )  # nothing computed yet: no estimate
     # 2 cells computed in 120 s: 60 s per cell, 4 cells left.
-    assert progress.update(SimpleNamespace(cells=cells(False))) == (
+    assert progress.update(outcome(False)) == (
         "sweep progress: 4/8 cells (2 already done), 2m00s elapsed, about 4m00s left"
     )
     assert sweep_mod._duration(3 * 3600 + 125) == "3h02m"
@@ -101,3 +102,28 @@ def test_sweep_progress_leaves_training_time_out_of_the_estimate(monkeypatch):
     assert progress.update(trained) == (
         "sweep progress: 2/8 cells, 11m00s elapsed (10m00s training), about 3m00s left"
     )
+
+
+TRAINING_SWEEP = """
+methods:
+  - name: igr
+    options: {latent_dim: 8, width: 32, depth: 2, epochs: 2, batch_shapes: 4,
+              surface_points: 128, opt_steps: 5, mesh_resolution: 24}
+  - gauss
+datasets:
+  - name: synthetic
+    options: {test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
+              gt_points: 2000}
+splits: [novel]
+contexts: [50]
+"""
+
+
+def test_sweep_progress_shows_a_training_apart_from_evaluation(shapebench, tmp_path):
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(TRAINING_SWEEP)
+    res = shapebench("sweep", str(sweep), "-q")
+    assert res.returncode == 0, res.stderr
+    lines = [line for line in res.stdout.splitlines() if line.startswith("sweep progress")]
+    # IGR trains before its cell: the first line counts that time as training.
+    assert len(lines) == 2 and "training)" in lines[0], res.stdout
