@@ -32,22 +32,6 @@ SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epo
              "-O", "mesh_resolution=24"]  # fmt: skip
 
 
-def igr_and_gauss_sweep(igr: dict[str, int], splits: list[str], contexts: list[int],
-                        name: str = "tiny") -> str:  # fmt: skip
-    """A sweep file's text: a small IGR (``igr``: its options) and Gauss densification on the
-    synthetic benchmark made tiny as :data:`TINY` makes it, seed 0."""
-    import yaml
-
-    return yaml.safe_dump({
-        "name": name,
-        "methods": [{"name": "igr", "options": igr}, "gauss"],
-        "datasets": [{"name": "synthetic", "options": {
-            "test_per_category": 1, "train_per_category": 1, "surface_candidates": 3000,
-            "gt_points": 2000}}],
-        "splits": splits, "contexts": contexts, "seeds": [0],
-    }, sort_keys=False)  # fmt: skip
-
-
 def load_benchmark(name: str):
     """The script ``benchmarks/<name>.py`` as a module, so tests call its ``main`` in-process.
 

@@ -19,14 +19,23 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import igr_and_gauss_sweep
 from test_interruptions import processes_mentioning, saved_epochs, wait_for
 
-SWEEP = igr_and_gauss_sweep(
-    {"latent_dim": 8, "width": 32, "depth": 2, "batch_shapes": 4, "surface_points": 64,
-     "mesh_resolution": 32, "opt_steps": 5, "epochs": 60},
-    splits=["trained", "novel"], contexts=[50, 100], name="soak",
-)  # fmt: skip
+SWEEP = """
+name: soak
+methods:
+  - name: igr
+    options: {latent_dim: 8, width: 32, depth: 2, batch_shapes: 4, surface_points: 64,
+              mesh_resolution: 32, opt_steps: 5, epochs: 60}
+  - gauss
+datasets:
+  - name: synthetic
+    options: {test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
+              gt_points: 2000}
+splits: [trained, novel]
+contexts: [50, 100]
+seeds: [0]
+"""
 EXPERIMENTS = ("synthetic-trained", "synthetic-novel")
 CELLS = 2 * 2 * 2  # methods x splits x context sizes
 

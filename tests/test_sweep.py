@@ -7,7 +7,7 @@ import signal
 import time
 
 import pytest
-from conftest import TINY, igr_and_gauss_sweep
+from conftest import TINY
 
 pytestmark = pytest.mark.slow  # runs and kills CLI subprocesses
 
@@ -104,11 +104,19 @@ def test_sweep_progress_leaves_training_time_out_of_the_estimate(monkeypatch):
     )
 
 
-TRAINING_SWEEP = igr_and_gauss_sweep(
-    {"latent_dim": 8, "width": 32, "depth": 2, "epochs": 2, "batch_shapes": 4,
-     "surface_points": 128, "opt_steps": 5, "mesh_resolution": 24},
-    splits=["novel"], contexts=[50],
-)  # fmt: skip
+TRAINING_SWEEP = """
+methods:
+  - name: igr
+    options: {latent_dim: 8, width: 32, depth: 2, epochs: 2, batch_shapes: 4,
+              surface_points: 128, opt_steps: 5, mesh_resolution: 24}
+  - gauss
+datasets:
+  - name: synthetic
+    options: {test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
+              gt_points: 2000}
+splits: [novel]
+contexts: [50]
+"""
 
 
 def test_sweep_progress_shows_a_training_apart_from_evaluation(shapebench, tmp_path):
