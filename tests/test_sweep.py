@@ -8,6 +8,7 @@ import time
 
 import pytest
 from conftest import TINY
+from test_soak import SWEEP as SOAK_SWEEP
 
 pytestmark = pytest.mark.slow  # runs and kills CLI subprocesses
 
@@ -104,19 +105,12 @@ def test_sweep_progress_leaves_training_time_out_of_the_estimate(monkeypatch):
     )
 
 
-TRAINING_SWEEP = """
-methods:
-  - name: igr
-    options: {latent_dim: 8, width: 32, depth: 2, epochs: 2, batch_shapes: 4,
-              surface_points: 128, opt_steps: 5, mesh_resolution: 24}
-  - gauss
-datasets:
-  - name: synthetic
-    options: {test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
-              gt_points: 2000}
-splits: [novel]
-contexts: [50]
-"""
+#: The soak test's small IGR and Gauss, trained for 2 epochs, one split and one context size.
+TRAINING_SWEEP = (
+    SOAK_SWEEP.replace("epochs: 60", "epochs: 2")
+    .replace("[trained, novel]", "[novel]")
+    .replace("[50, 100]", "[50]")
+)
 
 
 def test_sweep_progress_shows_a_training_apart_from_evaluation(shapebench, tmp_path):
