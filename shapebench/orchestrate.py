@@ -248,7 +248,7 @@ def _method_factory(
     settings: Settings,
     trainer: TrainerOptions,
     checkpoint: dict[str, str],
-    weights_seconds: list[float] | None = None,
+    weights_seconds: list[float],
 ) -> Callable[[], Method]:
     """The runner's method factory; the wall time of each :func:`ensure_checkpoint` (a training,
     or a reference install) is appended to ``weights_seconds``."""
@@ -269,8 +269,7 @@ def _method_factory(
                     req.quiet,
                     retrain=req.retrain,
                 )
-                if weights_seconds is not None:
-                    weights_seconds.append(time.perf_counter() - start)
+                weights_seconds.append(time.perf_counter() - start)
                 path = record["path"]
                 if record.get("run_id"):
                     checkpoint["run_id"] = record["run_id"]
