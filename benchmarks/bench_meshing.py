@@ -2,6 +2,7 @@
 
     python benchmarks/bench_meshing.py [--skip-dense-256] [--bf16] [--resolutions 128,256]
         [--coarse 32] [--safety 1.5] [--points 30000] [--batch-size 65536] [--seed 0]
+        [--device cpu|cuda]
 
 IGR, DeepSDF, MSC and OccNet turn a completion into a mesh by evaluating an MLP on a grid, and on
 a CPU the decoder, not marching cubes, is the whole cost. This script builds the 8x512 softplus
@@ -80,12 +81,22 @@ class GeometricInitMLP(nn.Module):
         return x.squeeze(-1)
 
 
-def make_field(decoder: nn.Module, bf16: bool) -> Callable[[np.ndarray], np.ndarray]:
-    """The numpy-in, numpy-out callable ``extract_mesh`` wants, as a method plugin would wrap it."""
+def make_field(
+    decoder: nn.Module, bf16: bool, device: torch.device
+) -> Callable[[np.ndarray], np.ndarray]:
+    """The numpy-in, numpy-out callable ``extract_mesh`` wants, as a method plugin would wrap it.
+
+    On a GPU the points travel to the device and the values back on every call, as they do in
+    the methods' own meshing (``shapebench.implicit.completion.field_of``), so the copies count.
+    """
 
     def field(points: np.ndarray) -> np.ndarray:
-        with torch.inference_mode(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            return decoder(torch.from_numpy(points)).float().numpy()
+        x = torch.from_numpy(points).to(device)
+        with (
+            torch.inference_mode(),
+            torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16),
+        ):
+            return decoder(x).float().cpu().numpy()
 
     return field
 
@@ -186,16 +197,20 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=30_000, help="points per mesh for Chamfer")
     parser.add_argument("--batch-size", type=int, default=65536)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu", help="where the decoder runs: cpu or cuda")
     args = parser.parse_args()
     resolutions = sorted(int(r) for r in args.resolutions.split(","))
 
     torch.manual_seed(args.seed)
-    decoder = GeometricInitMLP().eval()
-    field = make_field(decoder, args.bf16)
-    field(np.zeros((1024, 3), dtype=np.float32))  # warm-up: first-call allocations
+    device = torch.device(args.device)
+    decoder = GeometricInitMLP().eval().to(device)
+    field = make_field(decoder, args.bf16, device)
+    # Warm-up: first-call allocations, and on a GPU the kernels' first launch at full batch size.
+    field(np.zeros((args.batch_size, 3), dtype=np.float32))
     precision = "bf16 autocast" if args.bf16 else "float32"
+    where = f"{torch.cuda.get_device_name(device)}, " if device.type == "cuda" else ""
     print(
-        f"8x512 softplus MLP (IGR geometric init, r=0.6), {precision}; "
+        f"8x512 softplus MLP (IGR geometric init, r=0.6), {precision}; {where}"
         f"{os.cpu_count()} CPU cores ({platform.machine()}), torch {torch.__version__} "
         f"({torch.get_num_threads()} threads); bound {BOUND}, coarse {args.coarse}, "
         f"safety {args.safety}"
