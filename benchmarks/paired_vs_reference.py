@@ -35,8 +35,10 @@ def compare(board, reference: str) -> list[str]:
     ref = next((r.variant for r in board.rows if r.label == reference), None)
     if ref is None:
         known = ", ".join(repr(r.label) for r in board.rows)
-        raise SystemExit(f"no row labelled {reference!r} in {board.dataset}/{board.split}; "
-                         f"--reference takes one of: {known}")
+        raise SystemExit(
+            f"no row labelled {reference!r} in {board.dataset}/{board.split}; "
+            f"--reference takes one of: {known}"
+        )
     lines = [f"{board.dataset}/{board.split}, {board.metric} x{board.scale:g}, against "
              f"{reference} (wins: objects where the row is lower)",
              f"{'row':<28} {'k':>5} {'mean':>8} {'median':>8} {'wins':>7} {'p':>8}"]  # fmt: skip
