@@ -102,7 +102,17 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
         return "requeueing job" in Path(log).read_text() and out.startswith("PENDING")
 
     wait_for(requeued, timeout=120, what="the training job requeued")
-    # SLURM holds a requeued job back for a while (reason BeginTime): release it now.
+
+    def node_idle() -> bool:
+        return cluster.run("sinfo", "-h", "-o", "%T", check=False).split() == ["idle"]
+
+    # SLURM holds a requeued job back for a while (reason BeginTime): release it early, but only
+    # once the node has cleaned up the killed instance and a couple of seconds have passed.
+    # slurmd refuses a launch whose credential is not newer, to the second, than the kill of
+    # the job's previous instance ("Job N already killed, do not launch batch job"), and the
+    # cell then fails; that race reddened one CI run.
+    wait_for(node_idle, timeout=120, what="the node idle after the kill")
+    time.sleep(2.5)
     cluster.run("scontrol", "update", f"JobId={jid}", "StartTime=now")
     deadline = time.monotonic() + 600
     while "1 cells: 1 finished" not in (status := sb("sweep", str(sweep), "--status").stdout):
