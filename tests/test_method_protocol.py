@@ -24,6 +24,7 @@ from shapebench.config import load_profile, plugin_overrides
 from shapebench.dataset import Dataset
 from shapebench.errors import ConfigError
 from shapebench.implicit.completion import mesh_completion, stack_contexts
+from shapebench.implicit.losses import offsurface_samples
 from shapebench.implicit.networks import MSCEncoder
 from shapebench.implicit.recipes import PAPER_OPT_LR
 from shapebench.method import TrainerOptions, TrainingContext
@@ -137,8 +138,25 @@ def test_igr_eikonal_sample_count_follows_the_recipe_not_the_context_size():
     # The count follows the training recipe, not the test-time optimiser's (opt_recipe).
     swapped = IGR(IGR.Options(recipe="paper", opt_recipe="official")).options
     assert swapped.opt_eikonal_samples == 5000
-    with pytest.raises(ConfigError, match="opt_eikonal_samples"):
-        opts.build(IGR.Options, {"opt_eikonal_samples": -1}, "igr")
+    for bad in (-1, True, 2.5):
+        with pytest.raises(ConfigError, match="opt_eikonal_samples"):
+            opts.build(IGR.Options, {"opt_eikonal_samples": bad}, "igr")
+
+
+def test_a_fixed_eikonal_count_draws_its_base_points_once():
+    # With no move (variance 0) the samples are the base points themselves: 1000 draws with
+    # replacement from 1000 points hit about 1 - 1/e = 632 distinct ones. Drawing twice (picks,
+    # then picks of the picks) would hit about 470.
+    surface = torch.arange(3000, dtype=torch.float32).reshape(1, 1000, 3)
+    torch.manual_seed(0)
+    off = offsurface_samples(surface, "paper", paper_variance=0.0, count=1000)
+    assert off.shape == (1, 1000, 3)
+    assert 590 < len(torch.unique(off[0], dim=0)) < 670
+    assert torch.isin(off, surface).all()
+    # count=0 keeps each mode's own rule: min(paper_count, n) picks, or every point + n/8.
+    assert offsurface_samples(surface, "paper", paper_count=300).shape == (1, 300, 3)
+    assert offsurface_samples(surface[:, :50], "paper").shape == (1, 50, 3)
+    assert offsurface_samples(surface, "official", count=80).shape == (1, 80 + 10, 3)
 
 
 @pytest.mark.parametrize(("samples", "mode", "seen"), [

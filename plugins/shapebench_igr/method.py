@@ -56,10 +56,11 @@ class IGROptions(IGRDecoderOptions):
     )
 
     def __post_init__(self) -> None:
-        if self.opt_eikonal_samples is not None and self.opt_eikonal_samples < 0:
+        n = self.opt_eikonal_samples
+        # bool is an int in Python: `opt_eikonal_samples: true` must not pass as one sample.
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 0):
             raise ConfigError(
-                f"option 'opt_eikonal_samples' of igr must be a count >= 0, "
-                f"got {self.opt_eikonal_samples}",
+                f"option 'opt_eikonal_samples' must be a whole count >= 0, got {n!r}",
                 "give e.g. opt_eikonal_samples=1000, or 0 for one per context point",
             )
 
@@ -80,6 +81,8 @@ class IGR(ImplicitMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS})
     Options = IGROptions
     module_path = "shapebench_igr.module:IGRModule"
+    # EIKONAL_SAMPLES joins IGR's copy of the shared IGR_TRAINING table only: MSC uses that
+    # table too and has no opt_eikonal_samples, and apply_recipe fails on an unknown option.
     recipes = with_shared(
         {name: {**table, **EIKONAL_SAMPLES.get(name, {})} for name, table in IGR_TRAINING.items()},
         decoder="igr",
@@ -96,5 +99,5 @@ class IGR(ImplicitMethod):
         # Context normals are read only when this option asks for them.
         nrm = require_normals(nrm, "test_normals=true", self.label) if o.test_normals else None
         z0 = initial_latents(contexts, o.latent_dim, o.init_std, self.device)
-        loss = self.module.completion_loss(pts, nrm, o.opt_eikonal_samples or None)
+        loss = self.module.completion_loss(pts, nrm, o.opt_eikonal_samples)
         return self.optimise_codes(loss, z0)

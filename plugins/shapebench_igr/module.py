@@ -20,21 +20,15 @@ def surface_losses(
     points: torch.Tensor,
     normals: torch.Tensor | None,
     offsurface: str,
-    eikonal_samples: int | None = None,
+    eikonal_samples: int = 0,
 ) -> dict[str, torch.Tensor]:
     """IGR's loss terms per object (B,): manifold |f|, Eikonal, and the normal term.
 
-    The Eikonal samples are drawn around ``points`` (one per point), or around ``eikonal_samples``
-    points drawn from them with replacement: the same distribution, estimated with a sample count
-    that does not shrink with the context.
+    The Eikonal samples are drawn around ``points`` by ``offsurface``'s rule, or, with
+    ``eikonal_samples`` > 0, around that many points drawn from them with replacement: the same
+    distribution, estimated with a sample count that does not shrink with the context.
     """
-    if eikonal_samples is None:
-        off = offsurface_samples(points, offsurface)
-    else:
-        idx = torch.randint(0, points.shape[1], (points.shape[0], eikonal_samples),
-                            device=points.device)  # fmt: skip
-        base = torch.gather(points, 1, idx[..., None].expand(-1, -1, 3))
-        off = offsurface_samples(base, offsurface, paper_count=eikonal_samples)
+    off = offsurface_samples(points, offsurface, count=eikonal_samples)
     x = torch.cat([points, off], dim=1).detach().requires_grad_(True)
     with torch.enable_grad():
         f = decoder(z, x)
@@ -72,7 +66,7 @@ class IGRModule(OptionsModule):
         return adam_halving(self.parameters(), self.options.lr, self.options.lr_halve_every)
 
     def completion_loss(
-        self, points: torch.Tensor, normals: torch.Tensor | None, eikonal_samples: int | None = None
+        self, points: torch.Tensor, normals: torch.Tensor | None, eikonal_samples: int = 0
     ) -> Callable[[torch.Tensor], torch.Tensor]:
         """The per-object loss a latent code is optimised with at completion time
         (``eikonal_samples``: the method's ``opt_eikonal_samples``, see :func:`surface_losses`)."""

@@ -28,25 +28,37 @@ def normal_term(grad: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
 
 def offsurface_samples(surface: torch.Tensor, mode: str, local_sigma: float = 0.01,
                        global_bound: float = 1.8, paper_count: int = 5000,
-                       paper_variance: float = 0.04) -> torch.Tensor:  # fmt: skip
+                       paper_variance: float = 0.04, count: int = 0) -> torch.Tensor:  # fmt: skip
     """Points near and around the surface where the Eikonal term is evaluated.
 
-    ``mode="paper"`` (Appendix A.1): ``paper_count`` of the surface points, each moved by a
-    Gaussian of variance 0.04. ``mode="official"`` (IGR's ``NormalPerPoint``): every surface point
-    moved by a Gaussian of std ``local_sigma``, plus N/8 points uniform in
+    ``mode="paper"`` (Appendix A.1): ``paper_count`` of the surface points (at most all of them),
+    each moved by a Gaussian of variance 0.04. ``mode="official"`` (IGR's ``NormalPerPoint``):
+    every surface point moved by a Gaussian of std ``local_sigma``, plus N/8 points uniform in
     [-global_bound, global_bound]^3.
+
+    ``count`` > 0 replaces the mode's choice of base points by ``count`` points drawn from
+    ``surface`` with replacement, in one draw: the same distribution, estimated with a sample
+    count that does not shrink with the surface's (IGR's test-time ``opt_eikonal_samples``).
     """
     b, n, _ = surface.shape
+    if count > 0:
+        surface, n = _pick(surface, count), count
+        if mode == "paper":  # the base points are drawn: only the move is left
+            return surface + torch.randn_like(surface) * math.sqrt(paper_variance)
     if mode == "paper":
-        count = min(paper_count, n)
-        idx = torch.randint(0, n, (b, count), device=surface.device)
-        base = torch.gather(surface, 1, idx[..., None].expand(-1, -1, 3))
+        base = _pick(surface, min(paper_count, n))
         return base + torch.randn_like(base) * math.sqrt(paper_variance)
     if mode == "official":
         local = surface + torch.randn_like(surface) * local_sigma
         glob = (torch.rand(b, max(n // 8, 1), 3, device=surface.device) * 2 - 1) * global_bound
         return torch.cat([local, glob], dim=1)
     raise ValueError(f"off-surface mode must be 'paper' or 'official', got {mode!r}")
+
+
+def _pick(points: torch.Tensor, count: int) -> torch.Tensor:
+    """``count`` of each object's points, drawn uniformly with replacement: (B, count, 3)."""
+    idx = torch.randint(0, points.shape[1], (points.shape[0], count), device=points.device)
+    return torch.gather(points, 1, idx[..., None].expand(-1, -1, 3))
 
 
 def clamped_l1(pred: torch.Tensor, target: torch.Tensor, delta: float = 0.1) -> torch.Tensor:
