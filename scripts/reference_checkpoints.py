@@ -11,6 +11,11 @@ optimiser state) and ``reference.json`` (key, command, versions, machine, wall t
 terms) to ``shapebench/reference_checkpoints/<family>/<key>/``. Folders of a family whose key is
 no longer the current one are removed unless ``--keep-stale``. Methods sharing a checkpoint
 (``msc`` and ``msc-noopt``) are trained once. See :mod:`shapebench.reference_checkpoints`.
+
+A training is exported only if it ran at the commit the tree is at now, with no uncommitted
+changes (the tags of its MLflow run): the key digests the method's code, not every module a
+training goes through, and a shipped OccNet reference once turned out to be weights that no
+commit trains. ``--allow-dirty`` exports anyway and records the training's commit as it was.
 """
 
 from __future__ import annotations
@@ -55,6 +60,27 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, {platform.system()}"
 
 
+def provenance_problem(tags: dict[str, str], head: str) -> str | None:
+    """Why a training whose MLflow run carries ``tags`` must not ship from a tree at ``head``
+    (``git_commit()``'s value: a sha, ``-dirty`` appended if modified), or None."""
+    if head == "unknown" or head.endswith("-dirty"):
+        return f"the source tree is at {head}: commit first"
+    commit = tags.get("mlflow.source.git.commit")
+    if commit is None:
+        return "its training run records no git commit"
+    if tags.get("git.dirty") == "True":
+        return f"it was trained from a modified tree at {commit[:8]}"
+    if commit != head:
+        return f"it was trained at {commit[:8]}, the tree is at {head[:8]}"
+    return None
+
+
+def training_tags(settings, run_id: str) -> dict[str, str]:
+    from mlflow.tracking import MlflowClient
+
+    return MlflowClient(tracking_uri=settings.tracking_uri).get_run(run_id).data.tags
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--methods", default=None, help="comma-separated (default: every "
@@ -64,6 +90,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--keep-stale", action="store_true")
     parser.add_argument("--note", default="", help="recorded in reference.json, e.g. how the "
                         "workspace's trainings were run")  # fmt: skip
+    parser.add_argument("--allow-dirty", action="store_true", help="export trainings made from "
+                        "another or a modified tree (recorded in reference.json)")  # fmt: skip
     args = parser.parse_args(argv)
 
     from shapebench.config import make_settings
@@ -112,6 +140,10 @@ def main(argv: list[str] | None = None) -> None:
             subprocess.run([*run, "--workspace", args.workspace, "--quiet"], check=True)
             print(f"{name}: trained in {time.perf_counter() - start:.0f} s", flush=True)
             record = read_done(workdir)
+        tags = training_tags(settings, record["run_id"]) if record.get("run_id") else {}
+        problem = provenance_problem(tags, git_commit())
+        if problem and not args.allow_dirty:
+            raise SystemExit(f"{name}: not exported: {problem} (--allow-dirty to export anyway)")
         summary = json.loads((workdir / "summary.json").read_text())
         info = {
             "key": key,
@@ -125,6 +157,8 @@ def main(argv: list[str] | None = None) -> None:
             "versions": versions(),
             "machine": machine(),
             "git_commit": git_commit(),
+            "trained_at": tags.get("mlflow.source.git.commit", "unknown")
+            + ("-dirty" if tags.get("git.dirty") == "True" else ""),
             "exported": datetime.now(UTC).isoformat(timespec="seconds"),
         }
         if args.note:

@@ -108,3 +108,24 @@ def test_a_reference_of_another_key_or_a_damaged_one_is_not_used(with_reference)
     assert damaged.returncode != 0
     assert "does not match its reference.json" in damaged.stderr
     assert "--retrain" in damaged.stderr and "Traceback" not in damaged.stderr
+
+
+def test_the_export_script_ships_only_trainings_of_the_clean_tree_it_runs_in():
+    import importlib.util
+
+    from conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location(
+        "reference_checkpoints_script", ROOT / "scripts" / "reference_checkpoints.py"
+    )
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    head = "a" * 40
+    clean = {"mlflow.source.git.commit": head, "git.dirty": "False"}
+    assert script.provenance_problem(clean, head) is None
+    assert "modified tree" in script.provenance_problem({**clean, "git.dirty": "True"}, head)
+    assert "trained at bbbbbbbb" in script.provenance_problem(
+        {**clean, "mlflow.source.git.commit": "b" * 40}, head
+    )
+    assert "records no git commit" in script.provenance_problem({}, head)
+    assert "commit first" in script.provenance_problem(clean, head + "-dirty")
