@@ -115,7 +115,14 @@ def main(argv: list[str] | None = None) -> None:
     names = args.methods.split(",") if args.methods else [m.name for m in sweep_methods(default)]
     dataset = resolve_dataset(registry, DATASET, settings, None, {})
     target = SHIPPED
+    head = git_commit()
+    early = provenance_problem({"mlflow.source.git.commit": head.removesuffix("-dirty")}, head)
+    if early and not args.allow_dirty:  # before minutes of training, not after
+        raise SystemExit(f"not exporting: {early} (--allow-dirty to export anyway)")
     done_keys: dict[str, set[str]] = {}
+    # Train everything first, export after: an export rewrites tracked files, and a training
+    # started after it would be tagged as made from a modified tree.
+    finished = []
     for name in names:
         method = resolve_method(registry, name, settings, {})
         if not method.cls.trains:
@@ -140,8 +147,11 @@ def main(argv: list[str] | None = None) -> None:
             subprocess.run([*run, "--workspace", args.workspace, "--quiet"], check=True)
             print(f"{name}: trained in {time.perf_counter() - start:.0f} s", flush=True)
             record = read_done(workdir)
+        done_keys[family].add(key)
+        finished.append((name, key, family, workdir, record, command))
+    for name, key, family, workdir, record, command in finished:
         tags = training_tags(settings, record["run_id"]) if record.get("run_id") else {}
-        problem = provenance_problem(tags, git_commit())
+        problem = provenance_problem(tags, head)  # head: our own exports dirty the tree
         if problem and not args.allow_dirty:
             raise SystemExit(f"{name}: not exported: {problem} (--allow-dirty to export anyway)")
         summary = json.loads((workdir / "summary.json").read_text())
@@ -156,7 +166,7 @@ def main(argv: list[str] | None = None) -> None:
             "summary": summary,
             "versions": versions(),
             "machine": machine(),
-            "git_commit": git_commit(),
+            "git_commit": head,
             "trained_at": tags.get("mlflow.source.git.commit", "unknown")
             + ("-dirty" if tags.get("git.dirty") == "True" else ""),
             "exported": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -164,12 +174,13 @@ def main(argv: list[str] | None = None) -> None:
         if args.note:
             info["note"] = args.note
         ref = export(Path(record["path"]), target / family / key, info)
-        done_keys[family].add(key)
         print(f"{name}: {ref.checkpoint} ({ref.info['bytes'] / 1e6:.2f} MB), "
               f"trained in {summary['wall_seconds']:.0f} s on {summary['device']}")  # fmt: skip
     if args.keep_stale:
         return
     for family, keys in done_keys.items():
+        if not keys:  # nothing of this family exported (e.g. --export-only, no training): keep
+            continue
         for folder in sorted((target / family).iterdir()):
             if folder.is_dir() and folder.name not in keys:
                 shutil.rmtree(folder)

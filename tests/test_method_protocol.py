@@ -138,9 +138,11 @@ def test_igr_eikonal_sample_count_follows_the_recipe_not_the_context_size():
     # The count follows the training recipe, not the test-time optimiser's (opt_recipe).
     swapped = IGR(IGR.Options(recipe="paper", opt_recipe="official")).options
     assert swapped.opt_eikonal_samples == 5000
-    for bad in (-1, True, 2.5):
+    for bad in (-1, True):  # from a config file or the command line
         with pytest.raises(ConfigError, match="opt_eikonal_samples"):
             opts.build(IGR.Options, {"opt_eikonal_samples": bad}, "igr")
+    with pytest.raises(ConfigError, match="opt_eikonal_samples"):  # from Python
+        IGR.Options(opt_eikonal_samples=2.5)
 
 
 def test_a_fixed_eikonal_count_draws_its_base_points_once():
