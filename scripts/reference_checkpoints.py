@@ -60,11 +60,19 @@ def machine() -> str:
     return f"{cpu}, {os.cpu_count()} cores, {platform.system()}"
 
 
-def provenance_problem(tags: dict[str, str], head: str) -> str | None:
-    """Why a training whose MLflow run carries ``tags`` must not ship from a tree at ``head``
-    (``git_commit()``'s value: a sha, ``-dirty`` appended if modified), or None."""
+def tree_problem(head: str) -> str | None:
+    """Why nothing may ship from a tree at ``head`` (``git_commit()``'s value: a sha, ``-dirty``
+    appended if modified, or ``unknown``), or None."""
     if head == "unknown" or head.endswith("-dirty"):
         return f"the source tree is at {head}: commit first"
+    return None
+
+
+def provenance_problem(tags: dict[str, str], head: str) -> str | None:
+    """Why a training whose MLflow run carries ``tags`` must not ship from a tree at ``head``,
+    or None."""
+    if problem := tree_problem(head):
+        return problem
     commit = tags.get("mlflow.source.git.commit")
     if commit is None:
         return "its training run records no git commit"
@@ -116,7 +124,7 @@ def main(argv: list[str] | None = None) -> None:
     dataset = resolve_dataset(registry, DATASET, settings, None, {})
     target = SHIPPED
     head = git_commit()
-    early = provenance_problem({"mlflow.source.git.commit": head.removesuffix("-dirty")}, head)
+    early = tree_problem(head)
     if early and not args.allow_dirty:  # before minutes of training, not after
         raise SystemExit(f"not exporting: {early} (--allow-dirty to export anyway)")
     done_keys: dict[str, set[str]] = {}
