@@ -20,11 +20,20 @@ one blob (``trained code`` already bad), a search that stays near its start (``s
 worse than ``trained code``, codes far from the trained ones), or both. Nothing is logged; the
 checkpoint is only read. Objects are spread over the categories (the first of each, then the
 second...).
+
+``--split validation`` completes *held-out objects of the training categories* instead of test
+objects: generated like training objects but under ids (``<category>/val-NNN``) that neither the
+training split (whatever ``train_per_category``) nor the test splits ever use. That is the split
+to choose training settings on; test objects are not for tuning. ``--save FILE`` writes every
+row's per-object scores as JSON, and ``--against FILE`` pairs each row with the same row of an
+earlier ``--save`` (same objects and context points: two-sided Wilcoxon signed-rank test), e.g.
+two checkpoints on the same validation objects.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import tempfile
@@ -36,6 +45,8 @@ import numpy as np
 import torch
 
 from shapebench.types import TRAIN, TRAINED, Completion, Context, ObjectData, ObjectRef
+
+VALIDATION = "validation"
 
 sys.path.insert(0, str(Path(__file__).parent))
 from ladder import chamfer_x1000, context_of, gauss_scores  # noqa: E402
@@ -52,6 +63,37 @@ def spread(refs: list[ObjectRef], n: int) -> list[ObjectRef]:
         out += [v[depth] for v in by_cat.values() if len(v) > depth]
         depth += 1
     return out[:n]
+
+
+def validation_refs(dataset, per_category: int) -> list[ObjectRef]:
+    """Held-out objects of the training categories: ids no split of the synthetic benchmark
+    uses (its objects are generated from their ids), so they were never trained on and are not
+    test objects."""
+    return [
+        ObjectRef(f"{ref.category}/val-{i:03d}", ref.category)
+        for ref in spread(dataset.objects(TRAINED), 10**9)
+        if ref.id.endswith("test-000")
+        for i in range(per_category)
+    ]
+
+
+def compare_saved(rows: list[tuple[str, int, list[float]]], path: Path) -> None:
+    """Pair each row with the row of the same label and size saved in ``path``."""
+    from shapebench.board_stats import paired_p
+
+    before = {(r["label"], r["k"]): np.array(r["scores"]) for r in json.loads(path.read_text())}
+    print(f"\nagainst {path} (same objects and context points; wins = lower now)")
+    for label, k, scores in rows:
+        old = before.get((label, k))
+        now = np.array(scores)
+        if old is None or len(old) != len(now):
+            print(f"{label:<28} {k:>5}  not in {path.name}")
+            continue
+        ok = ~(np.isnan(old) | np.isnan(now))
+        wins = int((now[ok] < old[ok]).sum())
+        print(f"{label:<28} {k:>5}  {np.mean(old[ok]):8.2f} -> {np.mean(now[ok]):8.2f}  "
+              f"median {np.median(old[ok]):7.2f} -> {np.median(now[ok]):7.2f}  "
+              f"wins {wins}/{int(ok.sum())}  p = {paired_p(now[ok], old[ok]):.2g}")  # fmt: skip
 
 
 def trained_codes(module: torch.nn.Module) -> torch.Tensor | None:
@@ -110,7 +152,8 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     parser.add_argument("--objects", type=int, default=6)
     parser.add_argument("--contexts", default="50,1000")
     parser.add_argument("--steps", default="50,400", help="opt_steps values to try")
-    parser.add_argument("--split", default=TRAINED)
+    parser.add_argument("--split", default=TRAINED, help="trained, novel or validation "
+                        "(held-out objects of the training categories; tune on these)")  # fmt: skip
     parser.add_argument(
         "--train-only",
         action="store_true",
@@ -122,6 +165,8 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("-O", action="append", default=[], help="method option KEY=VALUE")
     parser.add_argument("-D", action="append", default=[], help="dataset option KEY=VALUE")
+    parser.add_argument("--save", type=Path, help="write the rows' per-object scores (JSON)")
+    parser.add_argument("--against", type=Path, help="pair the rows with an earlier --save")
     args = parser.parse_args(argv)
 
     from shapebench.config import make_settings
@@ -139,7 +184,12 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     train_refs = dataset.objects(TRAIN)
     train_pick = spread(train_refs, args.objects)
     train_objs = [dataset.load(r) for r in train_pick]
-    test_objs = [dataset.load(r) for r in spread(dataset.objects(args.split), args.objects)]
+    if args.split == VALIDATION:
+        per_category = -(-args.objects // len(validation_refs(dataset, 1)))
+        test_refs = spread(validation_refs(dataset, per_category), args.objects)
+    else:
+        test_refs = spread(dataset.objects(args.split), args.objects)
+    test_objs = [] if args.train_only else [dataset.load(r) for r in test_refs]
 
     method = resolved.cls(resolved.options)
     method.load_checkpoint(args.checkpoint)
@@ -180,7 +230,14 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
                 print(f"{label + f' {s} steps':<28} {k:>5} {stats(scores)} {what} {dist:.3f} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
             if objs is not train_objs:
-                print(f"{'gauss, ' + args.split:<28} {k:>5} {stats(gauss_scores(objs, ctxs))}")
+                gauss = gauss_scores(objs, ctxs)
+                rows.append((f"gauss, {args.split}", k, gauss))
+                print(f"{'gauss, ' + args.split:<28} {k:>5} {stats(gauss)}")
+    if args.save:
+        args.save.write_text(json.dumps([{"label": label, "k": k, "scores": scores}
+                                         for label, k, scores in rows], indent=1))  # fmt: skip
+    if args.against:
+        compare_saved(rows, args.against)
     return rows
 
 
