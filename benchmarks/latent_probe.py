@@ -70,30 +70,55 @@ def validation_refs(dataset, per_category: int) -> list[ObjectRef]:
     uses (its objects are generated from their ids), so they were never trained on and are not
     test objects."""
     return [
-        ObjectRef(f"{ref.category}/val-{i:03d}", ref.category)
-        for ref in spread(dataset.objects(TRAINED), 10**9)
-        if ref.id.endswith("test-000")
+        ObjectRef(f"{cat.name}/val-{i:03d}", cat.name)
+        for cat in dataset.categories()
+        if cat.split == TRAINED
         for i in range(per_category)
     ]
 
 
-def compare_saved(rows: list[tuple[str, int, list[float]]], path: Path) -> None:
-    """Pair each row with the row of the same label and size saved in ``path``."""
+def save_rows(path: Path, rows: list[tuple[str, int, list[float]]],
+              objects: dict[tuple[str, int], list[str]], meta: dict) -> None:  # fmt: skip
+    """Write the rows as JSON (a failed object as null), with the object ids of each row and
+    what else fixes its context points (``meta``: seed, data fingerprint)."""
+    out = [{"label": label, "k": k, "objects": objects[(label, k)],
+            "scores": [None if math.isnan(v) else v for v in scores]}
+           for label, k, scores in rows]  # fmt: skip
+    path.write_text(json.dumps({**meta, "rows": out}, indent=1, allow_nan=False))
+
+
+def compare_saved(rows: list[tuple[str, int, list[float]]],
+                  objects: dict[tuple[str, int], list[str]], meta: dict, saved: dict,
+                  name: str) -> None:  # fmt: skip
+    """Pair each row with the row of the same label and size in ``saved`` (a :func:`save_rows`
+    file, read before anything was written), if both scored the same objects from the same
+    context points; failed objects (NaN) are left out of the pair and counted."""
     from shapebench.board_stats import paired_p
 
-    before = {(r["label"], r["k"]): np.array(r["scores"]) for r in json.loads(path.read_text())}
-    print(f"\nagainst {path} (same objects and context points; wins = lower now)")
+    differs = [key for key, value in meta.items() if saved.get(key) != value]
+    if differs:
+        raise SystemExit(f"{name} was made with other {', '.join(differs)} "
+                         f"({', '.join(f'{k}={saved.get(k)}' for k in differs)}): "
+                         "its context points are not these")  # fmt: skip
+    before = {(r["label"], r["k"]): r for r in saved["rows"]}
+    print(f"\nagainst {name} (same objects and context points; wins = lower now)")
     for label, k, scores in rows:
-        old = before.get((label, k))
-        now = np.array(scores)
-        if old is None or len(old) != len(now):
-            print(f"{label:<28} {k:>5}  not in {path.name}")
+        row = before.get((label, k))
+        if row is None or row["objects"] != objects[(label, k)]:
+            print(f"{label:<28} {k:>5}  not in {name} (or other objects)")
             continue
+        old = np.asarray([np.nan if v is None else v for v in row["scores"]], dtype=float)
+        now = np.asarray(scores, dtype=float)
         ok = ~(np.isnan(old) | np.isnan(now))
+        failed = f"  failed {int(np.isnan(old).sum())} -> {int(np.isnan(now).sum())}"
+        if not ok.any():
+            print(f"{label:<28} {k:>5}  no object succeeded in both{failed}")
+            continue
         wins = int((now[ok] < old[ok]).sum())
         print(f"{label:<28} {k:>5}  {np.mean(old[ok]):8.2f} -> {np.mean(now[ok]):8.2f}  "
               f"median {np.median(old[ok]):7.2f} -> {np.median(now[ok]):7.2f}  "
-              f"wins {wins}/{int(ok.sum())}  p = {paired_p(now[ok], old[ok]):.2g}")  # fmt: skip
+              f"wins {wins}/{int(ok.sum())}  p = {paired_p(now[ok], old[ok]):.2g}"
+              + (failed if not ok.all() else ""))  # fmt: skip
 
 
 def trained_codes(module: torch.nn.Module) -> torch.Tensor | None:
@@ -145,7 +170,8 @@ def search(method, objects: list[ObjectData], contexts: list[Context]):
 
 
 def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
-    """Print the table; return its search rows as (label, k, per-object scores)."""
+    """Print the table; return its rows (searches, and Gauss densification beside the searches
+    of ``--split``) as (label, k, per-object scores)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--method", "-m", required=True)
     parser.add_argument("--checkpoint", required=True, type=Path)
@@ -168,6 +194,8 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     parser.add_argument("--save", type=Path, help="write the rows' per-object scores (JSON)")
     parser.add_argument("--against", type=Path, help="pair the rows with an earlier --save")
     args = parser.parse_args(argv)
+    # read before anything is written: --save and --against may name the same file
+    saved = json.loads(args.against.read_text()) if args.against else None
 
     from shapebench.config import make_settings
     from shapebench.options import parse_assignments
@@ -197,6 +225,7 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     table = trained_codes(method.module)
     own = None
     rows: list[tuple[str, int, list[float]]] = []
+    objects: dict[tuple[str, int], list[str]] = {}  # the object ids of each row
     print(f"{'row':<28} {'k':>5} {'mean':>9} {'median':>8}    code dist  seconds")
     if table is not None:
         if len(table) != len(train_refs):
@@ -224,6 +253,7 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
                 start = time.perf_counter()
                 scores, codes = search(method, objs, ctxs)
                 rows.append((f"{label} {s} steps", k, scores))
+                objects[(rows[-1][0], k)] = [d.ref.id for d in objs]
                 to_own = objs is train_objs and own is not None
                 dist = ((codes - own) if to_own else codes).norm(dim=1).mean().item()
                 what = "to trained" if to_own else "norm"
@@ -232,12 +262,13 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
             if objs is not train_objs:
                 gauss = gauss_scores(objs, ctxs)
                 rows.append((f"gauss, {args.split}", k, gauss))
+                objects[(rows[-1][0], k)] = [d.ref.id for d in objs]
                 print(f"{'gauss, ' + args.split:<28} {k:>5} {stats(gauss)}")
+    meta = {"seed": args.seed, "data": dataset.data_fingerprint()}
+    if saved is not None:
+        compare_saved(rows, objects, meta, saved, args.against.name)
     if args.save:
-        args.save.write_text(json.dumps([{"label": label, "k": k, "scores": scores}
-                                         for label, k, scores in rows], indent=1))  # fmt: skip
-    if args.against:
-        compare_saved(rows, args.against)
+        save_rows(args.save, rows, objects, meta)
     return rows
 
 

@@ -22,29 +22,35 @@ def test_validation_objects_are_held_out_of_every_split(tmp_path):
     probe = load_benchmark("latent_probe")
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
     data = resolve_dataset(get_registry(), "synthetic", settings, None,
-                           {"train_per_category": 40, "test_per_category": 40})  # fmt: skip
+                           {"train_per_category": 40, "test_per_category": 0})  # fmt: skip
     val = probe.validation_refs(data, 3)
-    ids = {r.id for r in val}
-    assert len(ids) == 3 * len({r.category for r in data.objects(TRAINED)})
-    assert {r.category for r in val} == {r.category for r in data.objects(TRAINED)}
+    trained = {c.name for c in data.categories() if c.split == TRAINED}
+    assert len({r.id for r in val}) == 3 * len(trained) and {r.category for r in val} == trained
     for split in (TRAIN, TRAINED, NOVEL):
-        assert not ids & {r.id for r in data.objects(split)}, split
-    # a held-out object is a different object (its mesh is generated from its id)
-    held_out, trained = data.mesh(val[0]), data.mesh(data.objects(TRAIN)[0])
-    assert not np.allclose(held_out.vertices[:5], trained.vertices[:5])
+        assert not {r.id for r in val} & {r.id for r in data.objects(split)}, split
+    # a held-out object is another object than the training object of the same index
+    for ref in val[::3][:4]:
+        held_out = data.mesh(ref).vertices
+        twin = data.mesh(type(ref)(ref.id.replace("/val-", "/train-"), ref.category)).vertices
+        assert held_out.shape != twin.shape or not np.allclose(held_out, twin), ref.id
 
 
-def test_saved_rows_are_paired_by_label_and_size(tmp_path, capsys):
+def test_saved_rows_are_paired_only_with_the_same_objects_and_contexts(tmp_path, capsys):
     probe = load_benchmark("latent_probe")
+    label, ids = "search, validation 50 steps", [f"chair/val-{i:03d}" for i in range(6)]
+    meta = {"seed": 0, "data": "abc"}
     saved = tmp_path / "before.json"
-    saved.write_text(json.dumps([{"label": "search, validation 50 steps", "k": 50,
-                                  "scores": [3.0, 4.0, 5.0, 6.0, 7.0, 8.0]}]))  # fmt: skip
-    now = [("search, validation 50 steps", 50, [1.0, 2.0, 3.0, 4.0, 5.0, 9.0]),
-           ("search, validation 50 steps", 1000, [1.0])]  # fmt: skip
-    probe.compare_saved(now, saved)
+    before = [(label, 50, [3.0, 4.0, 5.0, 6.0, 7.0, float("nan")]), (label, 100, [1.0] * 6)]
+    probe.save_rows(saved, before, {(label, 50): ids, (label, 100): ids}, meta)
+    back = json.loads(saved.read_text())  # strict JSON: a failed object is null
+    assert back["rows"][0]["scores"][-1] is None and back["seed"] == 0
+    now = [(label, 50, [1.0, 2.0, 3.0, 4.0, 9.0, 2.0]), (label, 100, [1.0] * 6)]
+    probe.compare_saved(now, {(label, 50): ids, (label, 100): ids[::-1]}, meta, back, "b.json")
     out = capsys.readouterr().out
-    assert "wins 5/6" in out and "5.50 ->     4.00" in out
-    assert "1000  not in before.json" in out
+    assert "wins 4/5" in out and "5.00 ->     3.80" in out and "failed 1 -> 0" in out
+    assert "100  not in b.json (or other objects)" in out  # same label, other objects
+    with pytest.raises(SystemExit, match="other seed"):
+        probe.compare_saved(now, {(label, 50): ids}, {**meta, "seed": 1}, back, "b.json")
 
 
 @pytest.mark.slow  # trains a small IGR, then searches its codes twice
