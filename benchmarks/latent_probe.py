@@ -213,7 +213,8 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     train_pick = spread(train_refs, args.objects)
     train_objs = [dataset.load(r) for r in train_pick]
     if args.split == VALIDATION:
-        per_category = -(-args.objects // len(validation_refs(dataset, 1)))
+        categories = sum(cat.split == TRAINED for cat in dataset.categories())
+        per_category = -(-args.objects // categories)
         test_refs = spread(validation_refs(dataset, per_category), args.objects)
     else:
         test_refs = spread(dataset.objects(args.split), args.objects)
@@ -248,12 +249,13 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
             groups.append((f"search, {args.split}", test_objs))
         for label, objs in groups:
             ctxs = [context_of(d, k, args.seed) for d in objs]
+            ids = [d.ref.id for d in objs]
             for s in steps:
                 method.options = replace(base, opt_steps=s)
                 start = time.perf_counter()
                 scores, codes = search(method, objs, ctxs)
                 rows.append((f"{label} {s} steps", k, scores))
-                objects[(rows[-1][0], k)] = [d.ref.id for d in objs]
+                objects[(rows[-1][0], k)] = ids
                 to_own = objs is train_objs and own is not None
                 dist = ((codes - own) if to_own else codes).norm(dim=1).mean().item()
                 what = "to trained" if to_own else "norm"
@@ -262,7 +264,7 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
             if objs is not train_objs:
                 gauss = gauss_scores(objs, ctxs)
                 rows.append((f"gauss, {args.split}", k, gauss))
-                objects[(rows[-1][0], k)] = [d.ref.id for d in objs]
+                objects[(rows[-1][0], k)] = ids
                 print(f"{'gauss, ' + args.split:<28} {k:>5} {stats(gauss)}")
     meta = {"seed": args.seed, "data": dataset.data_fingerprint()}
     if saved is not None:
