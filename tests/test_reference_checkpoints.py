@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 
 import pandas as pd
 import pytest
@@ -40,6 +41,35 @@ def test_shipped_references_load_and_hold_their_keys():
         assert sum(p.numel() for p in module.parameters()) > 0
         assert ref.info["command"].startswith("shapebench train")
         assert ref.info["summary"]["wall_seconds"] > 0 and ref.info["versions"]["torch"]
+
+
+#: The trainable methods whose default-profile training on the synthetic benchmark ships.
+SHIPPED_METHODS = ("igr", "deepsdf", "msc", "msc-noopt", "occnet")
+
+
+@pytest.mark.parametrize("name", SHIPPED_METHODS)
+def test_the_default_profile_still_resolves_to_a_shipped_reference(name, tmp_path):
+    """A change to a shipped method's code, its default options or the synthetic data changes the
+    key: the quickstart would then train that method locally (minutes), and the reference would
+    no longer be what the tables say. Retrain it (scripts/reference_checkpoints.py) and commit."""
+    from shapebench.config import make_settings
+    from shapebench.registry import get_registry
+    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.training import apply_trainer, checkpoint_key, profile_trainer
+
+    settings = make_settings(workspace=tmp_path, cache_dir=tmp_path / "cache", profile="quick")
+    registry = get_registry()
+    method = resolve_method(registry, name, settings, {})
+    dataset = resolve_dataset(registry, "synthetic", settings, None, {})
+    # one device, as the references were trained (a multi-GPU machine's "auto" would count more)
+    trainer = replace(profile_trainer(settings, seed=0), devices=1)
+    key = checkpoint_key(apply_trainer(method, trainer), dataset, trainer)
+    family = method.cls.checkpoint_family or method.name
+    shipped = sorted(p.name for p in (refs.SHIPPED / family).glob("*") if p.is_dir())
+    assert key in shipped, (
+        f"{name}'s default-profile key {key} has no shipped reference ({family}: {shipped}); "
+        f"retrain it: python scripts/reference_checkpoints.py --methods {family}"
+    )
 
 
 def _make_reference(sb, root) -> refs.Reference:
