@@ -38,6 +38,7 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -53,6 +54,9 @@ from shapebench.types import (
     ObjectRef,
     Supervision,
 )
+
+if TYPE_CHECKING:
+    import torch
 
 RUNGS = {"a": "one shape", "b": "one category", "c": "training split"}
 
@@ -88,6 +92,8 @@ class RungResult:
     gauss: float
     failures: int
     largest: float = math.nan  # trained, largest mesh component only (--largest)
+    # auto-decoders, objects of the rung: decoded from the codes training learned for them
+    trained_code: float = math.nan
 
 
 def rung_refs(dataset: Dataset, rung: str, category: str) -> list[ObjectRef]:
@@ -139,6 +145,17 @@ def largest_only(result: Completion | Exception, n_points: int, ctx: Context):
 
     mesh = largest_component(result.mesh)
     return Completion(points=sample_mesh_points(mesh, n_points, seed=ctx.seed), mesh=mesh)
+
+
+def trained_codes(module: torch.nn.Module) -> torch.Tensor | None:
+    """The per-training-object codes of an auto-decoder module (IGR: a Parameter, DeepSDF: an
+    Embedding); None for a method that encodes (MSC)."""
+    import torch
+
+    latents = getattr(module, "latents", None)
+    if latents is None:
+        return None
+    return (latents.weight if isinstance(latents, torch.nn.Embedding) else latents).detach()
 
 
 def nanmean(values: list[float]) -> float:
@@ -195,7 +212,29 @@ def run_rung(resolved, dataset: Dataset, rung: str, args, workdir: Path) -> Rung
     return RungResult(rung, len(refs), summary["optimizer_steps"], seconds,
                       summary["final"].get("train/loss", math.nan), nanmean(initial),
                       nanmean(trained), nanmean(gauss_scores(objects, contexts)),
-                      sum(map(math.isnan, trained)), nanmean(cut))  # fmt: skip
+                      sum(map(math.isnan, trained)), nanmean(cut),
+                      nanmean(decode_trained_codes(method, refs, objects, contexts)))  # fmt: skip
+
+
+def decode_trained_codes(method, refs: list[ObjectRef], objects: list[ObjectData],
+                         contexts: list[Context]) -> list[float]:  # fmt: skip
+    """chamfer-l2 x 1000 of each training object decoded from the code training learned for it
+    (nan where it failed; none for a method without per-object codes, or objects that were not
+    trained on). A search that starts elsewhere (DeepSDF's codes start far from its z0) can
+    miss a shape the network holds: this column says whether the network holds it."""
+    table = trained_codes(method.module)
+    if table is None:
+        return []
+    out = []
+    for data, ctx in zip(objects, contexts, strict=True):
+        if data.ref not in refs:
+            continue
+        try:
+            code = table[refs.index(data.ref)].to(method.device)
+            out.append(chamfer_x1000(method.decode(code, ctx, len(data.gt_points)), data, ctx))
+        except Exception:  # no surface: the code holds no shape
+            out.append(math.nan)
+    return out
 
 
 def resolve(args):
@@ -215,14 +254,17 @@ def resolve(args):
 
 
 def print_table(results: list[RungResult], method: str, largest: bool = False) -> None:
+    codes = any(not math.isnan(r.trained_code) for r in results)
     head = f"{'rung':<18} {'objects':>7} {'steps':>6} {'train s':>8} {'final loss':>10} "
     head += f"{'init x1000':>10} {method + ' x1000':>12} {'gauss x1000':>11} {'failed':>6}"
-    print(head + (f" {'largest x1000':>13}" if largest else ""))
+    print(head + (f" {'largest x1000':>13}" if largest else "")
+          + (f" {'code x1000':>10}" if codes else ""))  # fmt: skip
     for r in results:
         row = (f"{r.rung + ' ' + RUNGS[r.rung]:<18} {r.objects:>7} {r.steps:>6} {r.seconds:>8.1f} "
                f"{r.final_loss:>10.4g} {r.initial:>10.3f} {r.trained:>12.3f} {r.gauss:>11.3f} "
                f"{r.failures:>6}")  # fmt: skip
-        print(row + (f" {r.largest:>13.3f}" if largest else ""))
+        print(row + (f" {r.largest:>13.3f}" if largest else "")
+              + (f" {r.trained_code:>10.3f}" if codes else ""))  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> list[RungResult]:

@@ -17,9 +17,14 @@ prints chamfer-l2 x 1000 (mean and median over ``--objects`` objects) of:
 
 so a completion that barely depends on the context can be told apart as a shape space that holds
 one blob (``trained code`` already bad), a search that stays near its start (``search`` far
-worse than ``trained code``, codes far from the trained ones), or both. Nothing is logged; the
-checkpoint is only read. Objects are spread over the categories (the first of each, then the
-second...).
+worse than ``trained code``, codes far from the trained ones), or both. Under each search of the
+training objects an ``objective`` line tells those two last cases apart: the test-time objective
+(the loss the codes are optimised with, averaged over four seeded draws of what it samples) at
+the trained codes and at the codes found. Where the found code scores *lower* than the trained
+one while its completion is worse, the objective itself prefers the wrong shape: no optimiser,
+step count or start fixes that; only what the objective sees (the context, the prior) can.
+Nothing is logged; the checkpoint is only read. Objects are spread over the categories (the
+first of each, then the second...).
 
 ``--split validation`` completes *held-out objects of the training categories* instead of test
 objects: generated like training objects but under ids (``<category>/val-NNN``) that neither the
@@ -49,7 +54,7 @@ from shapebench.types import TRAIN, TRAINED, Completion, Context, ObjectData, Ob
 VALIDATION = "validation"
 
 sys.path.insert(0, str(Path(__file__).parent))
-from ladder import chamfer_x1000, context_of, gauss_scores  # noqa: E402
+from ladder import chamfer_x1000, context_of, gauss_scores, trained_codes  # noqa: E402
 
 
 def spread(refs: list[ObjectRef], n: int) -> list[ObjectRef]:
@@ -121,15 +126,6 @@ def compare_saved(rows: list[tuple[str, int, list[float]]],
               + (failed if not ok.all() else ""))  # fmt: skip
 
 
-def trained_codes(module: torch.nn.Module) -> torch.Tensor | None:
-    """The per-training-object codes of an auto-decoder module (IGR: a Parameter, DeepSDF: an
-    Embedding); None for a method that encodes (MSC)."""
-    latents = getattr(module, "latents", None)
-    if latents is None:
-        return None
-    return (latents.weight if isinstance(latents, torch.nn.Embedding) else latents).detach()
-
-
 def stats(values: list[float]) -> str:
     finite = [v for v in values if not math.isnan(v)]
     failed = len(values) - len(finite)
@@ -141,7 +137,8 @@ def stats(values: list[float]) -> str:
 
 def search(method, objects: list[ObjectData], contexts: list[Context]):
     """Completions of the contexts made as the runner makes them (one batch through
-    ``complete_batch``, which seeds the test-time draws from the contexts), and the codes found.
+    ``complete_batch``, which seeds the test-time draws from the contexts), the codes found, and
+    the test-time objective they were found with (None for a method without a search).
 
     The codes are recorded on their way from ``encode`` to ``decode``: completing by hand instead
     would leave torch's generator where earlier work put it, and the 50-point searches then
@@ -151,22 +148,56 @@ def search(method, objects: list[ObjectData], contexts: list[Context]):
     if len(sizes) != 1:
         raise SystemExit(f"objects with different gt_points counts {sorted(sizes)}")
     codes: list = []
-    encode = method.encode
+    objective: list = []
+    encode, optimise = method.encode, getattr(method, "optimise_codes", None)
 
     def recorded(ctxs: list[Context]):
         found = encode(ctxs)
         codes.extend(found)
         return found
 
+    def recorded_objective(loss, init):
+        objective.append(loss)
+        return optimise(loss, init)
+
     method.encode = recorded
+    if optimise is not None:
+        method.optimise_codes = recorded_objective
     try:
         results: list[Completion | Exception] = method.complete_batch(contexts, sizes.pop())
     finally:
-        del method.encode  # back to the class's method
+        del method.encode  # back to the class's methods
+        if optimise is not None:
+            del method.optimise_codes
     scores = [chamfer_x1000(r, d, c) for r, d, c in zip(results, objects, contexts, strict=True)]
     # MSC's codes are (posterior mean, variance) pairs: the mean is the code
     codes = [c[0] if isinstance(c, tuple) else c for c in codes]
-    return scores, torch.stack([torch.as_tensor(c) for c in codes])
+    return scores, torch.stack([torch.as_tensor(c) for c in codes]), (objective or [None])[0]
+
+
+def objective_at(loss, codes: torch.Tensor, draws: int = 4) -> np.ndarray:
+    """The per-object test-time objective ``loss`` at ``codes``, averaged over ``draws`` seeded
+    draws of whatever it samples (IGR's Eikonal points), the same draws for any ``codes``."""
+    values = []
+    for i in range(draws):
+        torch.manual_seed(i)
+        with torch.enable_grad():
+            values.append(loss(codes.detach().clone().requires_grad_(True)).detach())
+    return torch.stack(values).mean(0).cpu().numpy()
+
+
+def objective_line(loss, own: torch.Tensor, found: torch.Tensor, own_scores: list[float],
+                   scores: list[float]) -> str:  # fmt: skip
+    """Is the search's answer a worse minimum of the objective than the trained code, or a
+    better one? "found lower" objects whose completion is also worse are objects the objective
+    ranks wrongly: no search of it can recover them."""
+    at_own, at_found = objective_at(loss, own), objective_at(loss, found)
+    lower = at_found < at_own
+    worse = np.asarray(scores) > np.asarray(own_scores)
+    both = int((lower & worse).sum())
+    return (f"  objective at trained / found code: {at_own.mean():.4g} / {at_found.mean():.4g}; "
+            f"found lower on {int(lower.sum())}/{len(lower)} objects, "
+            f"{both} of them completed worse than by the trained code")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
@@ -253,7 +284,7 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
             for s in steps:
                 method.options = replace(base, opt_steps=s)
                 start = time.perf_counter()
-                scores, codes = search(method, objs, ctxs)
+                scores, codes, loss = search(method, objs, ctxs)
                 rows.append((f"{label} {s} steps", k, scores))
                 objects[(rows[-1][0], k)] = ids
                 to_own = objs is train_objs and own is not None
@@ -261,6 +292,10 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
                 what = "to trained" if to_own else "norm"
                 print(f"{label + f' {s} steps':<28} {k:>5} {stats(scores)} {what} {dist:.3f} "
                       f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
+                if to_own and loss is not None and s > 0:
+                    own_scores = [chamfer_x1000(method.decode(z, c, len(d.gt_points)), d, c)
+                                  for z, d, c in zip(own, objs, ctxs, strict=True)]  # fmt: skip
+                    print(objective_line(loss, own, codes.to(own.device), own_scores, scores))
             if objs is not train_objs:
                 gauss = gauss_scores(objs, ctxs)
                 rows.append((f"gauss, {args.split}", k, gauss))

@@ -53,6 +53,22 @@ def test_saved_rows_are_paired_only_with_the_same_objects_and_contexts(tmp_path,
         probe.compare_saved(now, {(label, 50): ids}, {**meta, "seed": 1}, back, "b.json")
 
 
+def test_objective_line_counts_the_objects_the_objective_ranks_wrongly():
+    probe = load_benchmark("latent_probe")
+    target = torch.tensor([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+
+    def loss(z: torch.Tensor) -> torch.Tensor:  # one value per object, with a seeded draw
+        return ((z - target) ** 2).sum(1) + 0.0 * torch.rand(1)
+
+    own = target + torch.tensor([[0.5, 0.0], [0.0, 0.0], [0.5, 0.5]])
+    found = target + torch.tensor([[0.1, 0.0], [0.3, 0.0], [0.0, 0.0]])
+    # found is lower on objects 0 and 2; object 0's completion is worse, 2's is better
+    line = probe.objective_line(loss, own, found, [1.0, 1.0, 5.0], [3.0, 0.5, 2.0])
+    assert "0.25 / 0.03333" in line
+    assert "found lower on 2/3 objects, 1 of them completed worse" in line
+    assert np.allclose(probe.objective_at(loss, found), [0.01, 0.09, 0.0])
+
+
 @pytest.mark.slow  # trains a small IGR, then searches its codes twice
 def test_probe_searches_are_repeatable(shapebench, data_cache):
     trained = shapebench("train", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "-q")
