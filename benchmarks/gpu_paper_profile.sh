@@ -42,27 +42,27 @@ timed() {
 }
 
 stamp "prepare"
-timed $sb prepare "${data[@]}" -m "$method" "${opts[@]}" -j "$(nproc)" -q
+timed $sb prepare "${data[@]}" -m "$method" ${opts[@]+"${opts[@]}"} -j "$(nproc)" -q
 
 case $mode in
 timing)
     epochs=${3:-3}
     for precision in 32-true bf16-mixed; do
         stamp "timing: $epochs epochs, $precision"
-        timed $sb train -m "$method" "${data[@]}" "${opts[@]}" --max-epochs "$epochs" \
+        timed $sb train -m "$method" "${data[@]}" ${opts[@]+"${opts[@]}"} --max-epochs "$epochs" \
             --precision "$precision" --retrain --workspace "$ws-timing-$precision"
     done
     ;;
 rows)
     epochs=${3:?$usage}
     stamp "training: $epochs epochs, 32-true"
-    timed $sb train -m "$method" "${data[@]}" "${opts[@]}" --max-epochs "$epochs" --retrain \
+    timed $sb train -m "$method" "${data[@]}" ${opts[@]+"${opts[@]}"} --max-epochs "$epochs" --retrain \
         --workspace "$ws"
     stamp "evaluation"
     rows=("$method")
     [ "$method" = msc ] && rows+=(msc-noopt)
     for row in "${rows[@]}"; do
-        timed $sb run -m "$row" "${data[@]}" "${opts[@]}" --max-epochs "$epochs" -q --workspace "$ws"
+        timed $sb run -m "$row" "${data[@]}" ${opts[@]+"${opts[@]}"} --max-epochs "$epochs" -q --workspace "$ws"
     done
     timed $sb run -m gauss "${data[@]}" -q --workspace "$ws"
     stamp "paired against gauss"
