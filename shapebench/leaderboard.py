@@ -46,6 +46,10 @@ class Row:
     overrides: dict
     code: str = ""
     checkpoint: str = ""
+    #: The run seeds whose cells the row pools (every (object, seed) pair is one sample).
+    seeds: tuple[int, ...] = ()
+    #: The checkpoint key of each seed's training, in seed order (the seed is part of the key).
+    checkpoints: tuple[str, ...] = ()
 
 
 @dataclass
@@ -199,6 +203,22 @@ def _text(value: object) -> str:
     return "" if value is None or (isinstance(value, float) and np.isnan(value)) else str(value)
 
 
+def _seeds_and_checkpoints(runs: pd.DataFrame) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    """One variant's seeds, and the checkpoint key of each seed's newest run (none for a method
+    that does not train)."""
+    if "seed" not in runs:
+        return (), ()
+    newest = runs.sort_values("start").groupby(runs["seed"].astype(int)).tail(1)
+    by_seed = {int(r["seed"]): _text(r.get("checkpoint_key")) for _, r in newest.iterrows()}
+    seeds = tuple(sorted(by_seed))
+    checkpoints = tuple(by_seed[s] for s in seeds if by_seed[s])
+    return seeds, checkpoints
+
+
+def _seeds_text(seeds: tuple[int, ...]) -> str:
+    return ("seed " if len(seeds) == 1 else "seeds ") + ", ".join(map(str, seeds))
+
+
 def _rows(runs: pd.DataFrame) -> list[Row]:
     rows = []
     for key, g in runs.groupby("variant.key"):
@@ -207,9 +227,10 @@ def _rows(runs: pd.DataFrame) -> list[Row]:
         display = first.get("method.display_name") or first["method"]
         if overrides.get("+normals"):  # never under the paper's row name
             display = f"{display} + test-time normals"
+        seeds, checkpoints = _seeds_and_checkpoints(g)
         rows.append(Row(str(key), first["_label"], first["method"], display, overrides,
-                        _text(first.get("method.code")),
-                        _text(first.get("checkpoint_key"))))  # fmt: skip
+                        _text(first.get("method.code")), _text(first.get("checkpoint_key")),
+                        seeds, checkpoints))  # fmt: skip
 
     def rank(row: Row) -> tuple[int, str]:
         base = row.display
@@ -405,6 +426,11 @@ def render_markdown(
     ctxs = board.contexts
     card = MetricCard.from_tag(board.card) if "=" in board.card else None
     scale_txt = f"x{card.scale:g}" if card and card.scale != 1 else ""
+    pooled = any(len(row.seeds) > 1 for row in board.rows)
+    # With several training seeds a sample is an (object, seed) pair, and rows may differ in
+    # their seeds: the row list says which each one pools.
+    samples = "(object, seed) pairs (each row's seeds are listed below)" if pooled else "objects"
+    same_seed = ", seed" if pooled else ""
     version = f"dataset fingerprint `{board.fingerprint}`"
     if board.data_root:
         version += f", data root `{board.data_root}`"
@@ -419,9 +445,9 @@ def render_markdown(
         "",
         f"**Protocol**: {board.protocol}; distances in the {FRAMES[board.frame][1]}.",
         "",
-        f"Raw: mean ± std over objects of {board.metric} {scale_txt}. Normalised: per object "
-        f"divided by `{board.reference}` on the same object and context size, then mean ± std "
-        "(the paper's eq. 8).",
+        f"Raw: mean ± std over {samples} of {board.metric} {scale_txt}. Normalised: per object "
+        f"divided by `{board.reference}` on the same object{same_seed} and context size, then "
+        "mean ± std (the paper's eq. 8).",
         "",
     ]
     for item in board.left_out:
@@ -459,8 +485,13 @@ def render_markdown(
     ]
     for row in board.rows:
         extra = f"; code `{row.code}`" if row.code else ""
-        if row.checkpoint:
+        if len(set(row.checkpoints)) > 1:
+            keys = ", ".join(f"`{key[:16]}`" for key in row.checkpoints)
+            extra += f"; checkpoints {keys} (one per seed)"
+        elif row.checkpoint:
             extra += f"; checkpoint `{row.checkpoint[:16]}`"
+        if row.seeds:
+            extra += f"; {_seeds_text(row.seeds)}"
         lines.append(f"* `{row.label}`: {row.method}, {_fmt_overrides(row.overrides)}{extra}")
     if board.costs is not None:
         lines += [

@@ -34,6 +34,11 @@ def test_leaderboard_raw_and_normalised_from_mlflow(with_example):
     assert "squared Euclidean NN distances" in md and "2000 eval points" in md
     assert "| Gauss densification (`gauss`) |" in md
     assert "| Sphere fit (example) (`example-sphere`) |" in md
+    # one seed: samples are objects, and the row list says which seed
+    assert "Raw: mean ± std over objects" in md and "* `gauss`: gauss, " in md
+    assert next(line for line in md.splitlines() if line.startswith("* `gauss`")).endswith(
+        "; seed 0"
+    )
 
     # Recompute equation 8 by hand from the per-object artifacts.
     for k in (50, 100):
@@ -91,3 +96,21 @@ def test_leaderboard_refuses_to_mix_metric_cards(tmp_path):
         match="different cards.*used by a.*used by b|different cards.*used by b.*used by a",
     ):
         build_board(tracker, "synthetic", "novel", "a", "chamfer-l2")
+
+
+def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
+    from shapebench.leaderboard import _rows
+
+    def run(key: str, seed: int, start: int, ckpt: str) -> dict:
+        return {"variant.key": key, "_label": key, "method": key, "method.display_name": key,
+                "variant.overrides": "{}", "method.code": "c0de", "checkpoint_key": ckpt,
+                "seed": str(seed), "start": start}  # fmt: skip
+
+    runs = pd.DataFrame([
+        run("igr", 1, 1, "k1-old"), run("igr", 0, 2, "k0"), run("igr", 1, 3, "k1"),
+        run("igr", 2, 4, "k2"), run("gauss", 0, 5, ""),
+    ])  # fmt: skip
+    rows = {r.label: r for r in _rows(runs)}
+    # seed order, and the newest run of a seed (a --force rerun) names its checkpoint
+    assert rows["igr"].seeds == (0, 1, 2) and rows["igr"].checkpoints == ("k0", "k1", "k2")
+    assert rows["gauss"].seeds == (0,) and rows["gauss"].checkpoints == ()
