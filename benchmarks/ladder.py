@@ -149,7 +149,9 @@ def largest_only(result: Completion | Exception, n_points: int, ctx: Context):
 
 def trained_codes(module: torch.nn.Module) -> torch.Tensor | None:
     """The per-training-object codes of an auto-decoder module (IGR: a Parameter, DeepSDF: an
-    Embedding); None for a method that encodes (MSC)."""
+    Embedding); None for a method that encodes (MSC). An Embedding with ``max_norm`` (DeepSDF's
+    bound 1) renormalises a row when it is looked up, so a stored row can exceed the bound by
+    the last optimiser step: it is returned as stored."""
     import torch
 
     latents = getattr(module, "latents", None)
@@ -223,8 +225,8 @@ def decode_trained_codes(method, refs: list[ObjectRef], objects: list[ObjectData
     trained on). A search that starts elsewhere (DeepSDF's codes start far from its z0) can
     miss a shape the network holds: this column says whether the network holds it."""
     table = trained_codes(method.module)
-    if table is None:
-        return []
+    if table is None or len(table) != len(refs):  # a training object that failed to load
+        return []  # shifts the rows: no code can be matched to its object
     out = []
     for data, ctx in zip(objects, contexts, strict=True):
         if data.ref not in refs:

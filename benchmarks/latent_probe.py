@@ -43,6 +43,7 @@ import math
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -52,6 +53,8 @@ import torch
 from shapebench.types import TRAIN, TRAINED, Completion, Context, ObjectData, ObjectRef
 
 VALIDATION = "validation"
+#: A test-time objective: one loss per object (B,) for codes (B, d).
+Objective = Callable[[torch.Tensor], torch.Tensor]
 
 sys.path.insert(0, str(Path(__file__).parent))
 from ladder import chamfer_x1000, context_of, gauss_scores, trained_codes  # noqa: E402
@@ -148,7 +151,7 @@ def search(method, objects: list[ObjectData], contexts: list[Context]):
     if len(sizes) != 1:
         raise SystemExit(f"objects with different gt_points counts {sorted(sizes)}")
     codes: list = []
-    objective: list = []
+    objective: list[Objective] = []
     encode, optimise = method.encode, getattr(method, "optimise_codes", None)
 
     def recorded(ctxs: list[Context]):
@@ -175,7 +178,7 @@ def search(method, objects: list[ObjectData], contexts: list[Context]):
     return scores, torch.stack([torch.as_tensor(c) for c in codes]), (objective or [None])[0]
 
 
-def objective_at(loss, codes: torch.Tensor, draws: int = 4) -> np.ndarray:
+def objective_at(loss: Objective, codes: torch.Tensor, draws: int = 4) -> np.ndarray:
     """The per-object test-time objective ``loss`` at ``codes``, averaged over ``draws`` seeded
     draws of whatever it samples (IGR's Eikonal points), the same draws for any ``codes``."""
     values = []
@@ -186,7 +189,7 @@ def objective_at(loss, codes: torch.Tensor, draws: int = 4) -> np.ndarray:
     return torch.stack(values).mean(0).cpu().numpy()
 
 
-def objective_line(loss, own: torch.Tensor, found: torch.Tensor, own_scores: list[float],
+def objective_line(loss: Objective, own: torch.Tensor, found: torch.Tensor, own_scores: list[float],
                    scores: list[float]) -> str:  # fmt: skip
     """Is the search's answer a worse minimum of the objective than the trained code, or a
     better one? "found lower" objects whose completion is also worse are objects the objective

@@ -48,8 +48,9 @@ class Row:
     checkpoint: str = ""
     #: The run seeds whose cells the row pools (every (object, seed) pair is one sample).
     seeds: tuple[int, ...] = ()
-    #: The checkpoint key of each seed's training, in seed order (the seed is part of the key).
-    checkpoints: tuple[str, ...] = ()
+    #: (seed, checkpoint key) of each seed's training, in seed order (the seed is part of the
+    #: key); seeds whose runs name no checkpoint are left out.
+    checkpoints: tuple[tuple[int, str], ...] = ()
 
 
 @dataclass
@@ -203,15 +204,17 @@ def _text(value: object) -> str:
     return "" if value is None or (isinstance(value, float) and np.isnan(value)) else str(value)
 
 
-def _seeds_and_checkpoints(runs: pd.DataFrame) -> tuple[tuple[int, ...], tuple[str, ...]]:
-    """One variant's seeds, and the checkpoint key of each seed's newest run (none for a method
-    that does not train)."""
+def _seeds_and_checkpoints(
+    runs: pd.DataFrame,
+) -> tuple[tuple[int, ...], tuple[tuple[int, str], ...]]:
+    """One variant's seeds, and (seed, checkpoint key) of each seed's newest run (none for a
+    method that does not train)."""
     if "seed" not in runs:
         return (), ()
     newest = runs.sort_values("start").groupby(runs["seed"].astype(int)).tail(1)
     by_seed = {int(r["seed"]): _text(r.get("checkpoint_key")) for _, r in newest.iterrows()}
     seeds = tuple(sorted(by_seed))
-    checkpoints = tuple(by_seed[s] for s in seeds if by_seed[s])
+    checkpoints = tuple((s, by_seed[s]) for s in seeds if by_seed[s])
     return seeds, checkpoints
 
 
@@ -426,8 +429,8 @@ def render_markdown(
     ctxs = board.contexts
     card = MetricCard.from_tag(board.card) if "=" in board.card else None
     scale_txt = f"x{card.scale:g}" if card and card.scale != 1 else ""
-    pooled = any(len(row.seeds) > 1 for row in board.rows)
-    # With several training seeds a sample is an (object, seed) pair, and rows may differ in
+    pooled = len({seed for row in board.rows for seed in row.seeds}) > 1
+    # With several seeds in the table a sample is an (object, seed) pair, and rows may differ in
     # their seeds: the row list says which each one pools.
     samples = "(object, seed) pairs (each row's seeds are listed below)" if pooled else "objects"
     same_seed = ", seed" if pooled else ""
@@ -485,9 +488,9 @@ def render_markdown(
     ]
     for row in board.rows:
         extra = f"; code `{row.code}`" if row.code else ""
-        if len(set(row.checkpoints)) > 1:
-            keys = ", ".join(f"`{key[:16]}`" for key in row.checkpoints)
-            extra += f"; checkpoints {keys} (one per seed)"
+        if len({key for _, key in row.checkpoints}) > 1:
+            keys = ", ".join(f"seed {seed} `{key[:16]}`" for seed, key in row.checkpoints)
+            extra += f"; checkpoints {keys}"
         elif row.checkpoint:
             extra += f"; checkpoint `{row.checkpoint[:16]}`"
         if row.seeds:

@@ -27,5 +27,5 @@ def test_rung_a_igr_learns_one_shape(data_cache):
     # stays there.
     assert result.trained <= 0.5 * result.initial
     assert result.trained < 10 * result.gauss  # and the trained one is in Gauss's league
-    # IGR's codes start at 0 and the search starts near 0: the learned code holds the shape too
+    # the code training learned for the shape decodes to it as well
     assert result.trained_code <= 0.5 * result.initial

@@ -112,5 +112,6 @@ def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
     ])  # fmt: skip
     rows = {r.label: r for r in _rows(runs)}
     # seed order, and the newest run of a seed (a --force rerun) names its checkpoint
-    assert rows["igr"].seeds == (0, 1, 2) and rows["igr"].checkpoints == ("k0", "k1", "k2")
+    assert rows["igr"].seeds == (0, 1, 2)
+    assert rows["igr"].checkpoints == ((0, "k0"), (1, "k1"), (2, "k2"))
     assert rows["gauss"].seeds == (0,) and rows["gauss"].checkpoints == ()
