@@ -8,7 +8,11 @@ store. Runs are matched by what identifies them, never by run id:
 - a training by its checkpoint key,
 - a parent run by its parent key,
 
-so merging the same store twice, or two stores holding the same cell, adds each run once. Only
+so merging the same store twice, or two stores holding the same cell, adds each run once. A cell
+already in the target keeps the target's scores; where the source's scores of that key differ by
+more than the cell-key contract allows (:data:`shapebench.protocol.SCORE_RTOL`, relative: other
+thread counts and machines agree to it, not bitwise), the merge reports the cell as
+disagreeing, since the two stores then did not compute the same thing under one key. Only
 FINISHED cells and trainings are imported (an unfinished one is work to redo); the copy keeps the
 source's tags, params, metric histories (with their steps and timestamps), start and end times
 and artifacts, and records where it came from (tag ``shapebench.merged_from``). A copied cell's
@@ -26,7 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from shapebench.errors import ShapebenchError
-from shapebench.records import CELL_KEY_TAG, KIND_TAG, TRAINING_RUN_TAG
+from shapebench.protocol import SCORE_RTOL, scores_agree
+from shapebench.records import CELL_KEY_TAG, KIND_TAG, TRAINING_RUN_TAG, CellRecord
 from shapebench.tracking import CELL_KIND, PARENT_KIND, TRAINING_KIND
 
 #: The tag that identifies each kind of run across stores.
@@ -52,6 +57,8 @@ class MergeReport:
     added: dict[str, int] = field(default_factory=dict)
     present: dict[str, int] = field(default_factory=dict)
     skipped_unfinished: int = 0
+    #: Cell keys present in both stores whose scores differ beyond the cell-key tolerance.
+    disagreeing: list[str] = field(default_factory=list)
 
     def line(self) -> str:
         kinds = sorted(set(self.added) | set(self.present))
@@ -59,6 +66,12 @@ class MergeReport:
                  for k in kinds]  # fmt: skip
         if self.skipped_unfinished:
             parts.append(f"{self.skipped_unfinished} unfinished runs left out")
+        if self.disagreeing:
+            keys = ", ".join(self.disagreeing[:3]) + (", ..." if len(self.disagreeing) > 3 else "")
+            parts.append(
+                f"{len(self.disagreeing)} cells kept whose scores differ from the source's "
+                f"beyond a relative {SCORE_RTOL:g} (keys {keys})"
+            )
         return "; ".join(parts) or "nothing to merge"
 
 
@@ -117,7 +130,9 @@ def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
             key = run.data.tags.get(IDENTITY[kind], "")
             existing = _find(target, target_exp, kind, key, run)
             if existing is not None:
-                merged[run.info.run_id] = existing
+                merged[run.info.run_id] = existing.info.run_id
+                if kind == CELL_KIND and _scores_differ(run, existing):
+                    report.disagreeing.append(key)
                 report.present[kind] = report.present.get(kind, 0) + 1
                 continue
             parent = merged.get(run.data.tags.get("mlflow.parentRunId", ""))
@@ -139,14 +154,27 @@ def _experiment(client: Any, uri: str, name: str) -> str:
     return client.create_experiment(name, artifact_location=location)
 
 
-def _find(client: Any, exp_id: str, kind: str, key: str, run: Any) -> str | None:
+def _scores_differ(run: Any, other: Any) -> bool:
+    """Whether two runs of one cell key hold scores (each metric's mean, median and std) that
+    differ beyond the cell-key tolerance."""
+    names = CellRecord.from_run(run).cards
+    ours, theirs = run.data.metrics, other.data.metrics
+    for name in names:
+        for stat in ("mean", "median", "std"):
+            key = f"{name}.{stat}"
+            if key in ours and key in theirs and not scores_agree(ours[key], theirs[key]):
+                return True
+    return False
+
+
+def _find(client: Any, exp_id: str, kind: str, key: str, run: Any) -> Any | None:
     """The target's run with the same identity (a parent: merged from the same source run)."""
     if kind == PARENT_KIND:
         flt = f"tags.`{MERGED_FROM}` LIKE '%{run.info.run_id}'"
     else:
         flt = f"tags.`{IDENTITY[kind]}` = '{key}' and attributes.status = 'FINISHED'"
     found = client.search_runs([exp_id], filter_string=flt, max_results=1)
-    return found[0].info.run_id if found else None
+    return found[0] if found else None
 
 
 def _copy(source: Any, target: Any, exp_id: str, run: Any, source_uri: str,

@@ -6,11 +6,13 @@ import os
 import signal
 from collections import Counter
 
+import numpy as np
 import pytest
 from test_interruptions import processes_mentioning, wait_for
 from test_soak import SWEEP, all_runs, cell_runs, leaderboard, score_columns
 
 from shapebench.launchers import worker_argv
+from shapebench.protocol import SCORE_RTOL
 
 
 def test_worker_command_line_replaces_the_launcher_options():
@@ -62,7 +64,13 @@ def _assert_each_cell_once_and_same_board(sb, expected, out):
     assert len(training) == 1
     got = leaderboard(sb, out)
     numeric = score_columns(expected)  # timings differ between runs; the scores may not
-    assert ((got[numeric] - expected[numeric]).abs().max().max()) == 0
+    # Workers run with cores // N torch threads, the inline sweep with all cores: float sums
+    # differ in order, so the contract is the cell key's relative tolerance, not bitwise.
+    a, b = got[numeric].to_numpy(float), expected[numeric].to_numpy(float)
+    close = np.isclose(a, b, rtol=SCORE_RTOL, atol=0.0, equal_nan=True)
+    worst = np.nanmax(np.abs(a - b) / np.where(b == 0, 1.0, np.abs(b)))
+    print(f"largest relative difference from the inline leaderboard: {worst:.3g}")
+    assert close.all(), got[numeric].where(~close).dropna(how="all")
 
 
 @pytest.mark.slow

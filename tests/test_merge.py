@@ -30,6 +30,24 @@ def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
     assert again.returncode == 0 and "0 cell runs added" in again.stdout
     assert len(sb.cell_runs("synthetic-novel")) == 2
 
+    # A cell key promises scores equal to a relative SCORE_RTOL (other thread counts sum floats
+    # in another order), not bitwise: a merge keeps the target's cell and reports a source whose
+    # scores of that key differ by more.
+    from shapebench.protocol import SCORE_RTOL
+
+    (k50,) = [r for r in jobs[1].cell_runs("synthetic-novel")
+              if r.data.tags["context_size"] == "50"]  # fmt: skip
+    mean = k50.data.metrics["chamfer-l2.mean"]
+    source = jobs[1].client()
+    source.log_metric(k50.info.run_id, "chamfer-l2.mean", mean * (1 + SCORE_RTOL / 10), step=50)
+    close = sb("merge", str(jobs[1].workspace))
+    assert close.returncode == 0 and "differ" not in close.stdout, close.stdout
+    source.log_metric(k50.info.run_id, "chamfer-l2.mean", mean * (1 + SCORE_RTOL * 10), step=50)
+    far = sb("merge", str(jobs[1].workspace))
+    assert far.returncode == 0 and "0 cell runs added" in far.stdout
+    assert "1 cells kept whose scores differ" in far.stdout, far.stdout
+    assert k50.data.tags["shapebench.cell_key"] in far.stdout
+
     # The merged store is a store like any other: its leaderboard reads the copied artifacts,
     # and a run in it reuses the merged cells.
     board = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--reference", "gauss",
