@@ -33,6 +33,7 @@ from shapebench.paper import PAPER_METHOD_ORDER, paper_table
 from shapebench.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
 from shapebench.records import CellRecord
 from shapebench.tracking import CELL_KIND, Tracker, experiment_name
+from shapebench.types import EVAL_SPLITS
 
 
 @dataclass
@@ -605,12 +606,26 @@ def board_path(out_dir: Path, dataset: str, split: str, frame: str) -> Path:
     return out_dir / f"{dataset}-{split}{suffix}.md"
 
 
+def declared_splits(dataset: str) -> tuple[str, ...]:
+    """The evaluation splits in the order ``dataset`` declares them (trained before novel, as
+    the paper's Table 1 comes before Table 2); the built-in order when the dataset is not
+    installed here (a store merged from elsewhere)."""
+    from shapebench.registry import get_registry
+
+    try:
+        return tuple(get_registry().load("dataset", dataset).eval_splits)
+    except Exception:  # not installed, or a plugin that fails to load: the store still reads
+        return EVAL_SPLITS
+
+
 def splits_with_runs(tracker: Tracker, dataset: str) -> list[str]:
     """The splits of ``dataset`` that have an experiment (the leaderboard's and the report's
-    default)."""
+    default), in the order the dataset declares them, undeclared ones after, by name."""
     prefix = f"{dataset}-"
     names = [e.name for e in tracker.client.search_experiments() if e.name.startswith(prefix)]
-    return sorted(n[len(prefix) :] for n in names if n[len(prefix) :] != "train")
+    found = {n[len(prefix) :] for n in names} - {"train"}
+    order = declared_splits(dataset)
+    return sorted(found, key=lambda s: (order.index(s) if s in order else len(order), s))
 
 
 def build_leaderboards(

@@ -115,3 +115,18 @@ def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
     assert rows["igr"].seeds == (0, 1, 2)
     assert rows["igr"].checkpoints == ((0, "k0"), (1, "k1"), (2, "k2"))
     assert rows["gauss"].seeds == (0,) and rows["gauss"].checkpoints == ()
+
+
+@pytest.mark.slow  # builds an MLflow store: about 6 s
+def test_splits_come_in_the_order_the_dataset_declares(tmp_path):
+    """Trained before novel (the paper's Table 1, then Table 2), not alphabetically; a split no
+    dataset declares comes last; a dataset not installed here falls back to the built-in order."""
+    from shapebench.leaderboard import splits_with_runs
+
+    settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path, "quick", tmp_path)
+    tracker = Tracker(settings)
+    for name in ("synthetic-novel", "synthetic-extra", "synthetic-trained", "synthetic-train",
+                 "gone-novel", "gone-trained"):  # fmt: skip
+        tracker.experiment_id(name)
+    assert splits_with_runs(tracker, "synthetic") == ["trained", "novel", "extra"]
+    assert splits_with_runs(tracker, "gone") == ["trained", "novel"]
