@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import click
+
+from shapebench.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
 
 if TYPE_CHECKING:
     from shapebench.config import Settings
@@ -139,10 +142,12 @@ def describe_kind(kind: str, profile: str | None = None) -> None:
                 f"{'yes' if cls.needs_data_root else 'no'}"
             )
         elif kind == "metric":
+            card = cls().card(30000)
             click.echo(
                 f"    {'higher' if cls.higher_is_better else 'lower'} is better; card: "
-                f"{cls().card(30000).describe()}"
+                f"{card.describe()}"
             )
+            click.echo(f"    in other frames: {frame_factor(card)}")
         if kind != "metric":
             effect = _in_effect(kind, name, cls, profile_data)
             for opt in describe(cls.Options):
@@ -153,6 +158,36 @@ def describe_kind(kind: str, profile: str | None = None) -> None:
                     shown = f"{value!r}"
                 click.echo(f"    {opt.name} ({opt.type}, {shown}): {opt.help}")
         click.echo("")
+    if kind == "metric":
+        echo_frames(click.echo)
+
+
+def frame_factor(card: Any) -> str:
+    """How a value of ``card`` converts between the evaluation frames (--frame)."""
+    ratio = FRAMES[PAPER_FRAME][0] / FRAMES[DEFAULT_FRAME][0]
+    if card.power in (1, 2) and card.reduction != "fraction":
+        factor = ratio**card.power
+        return (
+            f"a value in {PAPER_FRAME} is the {DEFAULT_FRAME} value x {factor:g} "
+            f"(distances{' squared' if card.power == 2 else ''}: 1/{1 / factor:g})"
+        )
+    if card.reduction == "fraction":
+        return (
+            "not a fixed factor: the threshold is a distance in the frame of the run, so the "
+            "same completion counts other points; compare values of one frame only"
+        )
+    return "the same in every frame (not a distance)"
+
+
+def echo_frames(echo: Callable[[str], None]) -> None:
+    """The evaluation frames, what each means, and which one the paper's tables use."""
+    echo("Frames (--frame on run, sweep, leaderboard and report; part of every card and cell key):")
+    for name, (scale, text) in FRAMES.items():
+        marks = [m for m, on in (("default", name == DEFAULT_FRAME),
+                                 ("the paper's tables", name == PAPER_FRAME)) if on]  # fmt: skip
+        shown = f" [{', '.join(marks)}]" if marks else ""
+        echo(f"  {name}{shown}: coordinates x {scale:g} before scoring; {text}")
+    echo(f"  Compare with the paper's figures only in {PAPER_FRAME} (docs/metrics.md).")
 
 
 def _in_effect(kind: str, name: str, cls: type, profile: dict | None) -> dict:

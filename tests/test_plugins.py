@@ -192,3 +192,18 @@ def test_unknown_and_conflicting_names(tmp_path, monkeypatch):
         reg.get("method", "same")
     with pytest.raises(UnknownNameError, match="available: same"):
         reg.get("method", "other")
+
+
+def test_metrics_listing_names_the_frames_and_each_metrics_factor(capsys):
+    """`shapebench metrics`: every card depends on a frame, and the paper's figures are only
+    comparable in unit-diameter; squared values convert by 1/4, unsquared by 1/2."""
+    from shapebench.report import describe_kind
+
+    describe_kind("metric")
+    out = capsys.readouterr().out
+    assert "unit-radius [default]: coordinates x 1" in out
+    assert "unit-diameter [the paper's tables]: coordinates x 0.5" in out
+    blocks = {b.split()[0]: b for b in out.split("\n\n") if b.strip()}
+    assert "x 0.25 (distances squared: 1/4)" in blocks["chamfer-l2"]
+    assert "x 0.5 (distances: 1/2)" in blocks["chamfer-l1"]
+    assert "not a fixed factor" in blocks["fscore"]
