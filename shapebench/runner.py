@@ -8,6 +8,7 @@ that table and counted; the other objects go on.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 import time
@@ -653,6 +654,8 @@ class Runner:
                         try:
                             data = cache.get(ref)
                             ctx = store.context(data, size, seed, plan.protocol.context_normals)
+                            if ref.id in pictured:
+                                ctx = dataclasses.replace(ctx, pictured=True)
                         except (ObjectLoadError, ValueError) as exc:
                             row.update(status="failed", error=str(exc), seconds=0.0)
                             bar.update()

@@ -93,6 +93,10 @@ class Context:
     normals: np.ndarray | None
     #: Seed for any randomness of the method (runs repeat exactly).
     seed: int
+    #: Whether this object's completion is pictured (the report's grids, the cell's MLflow
+    #: artifacts): a method may spend work there that the scores do not need, such as drawing
+    #: posterior samples for the report's uncertainty pictures. Never changes the completion.
+    pictured: bool = False
 
     @property
     def size(self) -> int:

@@ -63,7 +63,28 @@ def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
     res = shapebench("run", "-m", "msc-noopt", *args)
     assert res.returncode == 0, res.stderr[-3000:]
     assert len(_training_runs(shapebench)) == 1
-    assert len(shapebench.cell_runs("synthetic-novel")) == 2
+    cells = shapebench.cell_runs("synthetic-novel")
+    assert len(cells) == 2
+
+    # Without --samples, the pictured objects (3 of the 4) still get posterior samples, so the
+    # report's uncertainty section exists by default; the others draw none, and the samples
+    # never change the scores (pictured_samples=0 gives the same cell values).
+    (noopt,) = [c for c in cells if c.data.tags["method"] == "msc-noopt"]
+    table = pd.read_csv(client.download_artifacts(noopt.info.run_id, "per_object.csv",
+                                                  str(shapebench.workspace / "noopt")))  # fmt: skip
+    from shapebench.pictures import picture_objects
+
+    pictured = set(picture_objects(table.object.tolist()))
+    assert len(pictured) == 3
+    ok = table[table.status == "ok"]
+    assert (ok[ok.object.isin(pictured)]["posterior_spread"] > 0).all()
+    assert ok[~ok.object.isin(pictured)]["posterior_spread"].isna().all()
+    res = shapebench("run", "-m", "msc-noopt", *args, "-O", "pictured_samples=0")
+    assert res.returncode == 0, res.stderr[-3000:]
+    runs = shapebench.cell_runs("synthetic-novel")
+    seen = noopt.info.run_id
+    (plain,) = [c for c in runs if c.data.tags["method"] == "msc-noopt" and c.info.run_id != seen]
+    assert plain.data.metrics["chamfer-l2.mean"] == noopt.data.metrics["chamfer-l2.mean"]
 
 
 def test_deepsdf_trains_on_sdf_samples_and_completes_or_fails_per_object(shapebench):
