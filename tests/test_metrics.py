@@ -18,7 +18,7 @@ import torch
 from scipy.spatial import cKDTree
 
 import shapebench.metrics.chamfer as chamfer_module
-from shapebench.geometry.nearest import brute_force_nearest, nearest_distances
+from shapebench.geometry.nearest import PointTree, brute_force_nearest, nearest_distances
 from shapebench.metric import Metric
 from shapebench.metrics.chamfer import (
     Chamfer,
@@ -410,7 +410,7 @@ def test_gt_tree_is_built_once_per_object(monkeypatch: pytest.MonkeyPatch) -> No
     trees_passed: list[object] = []
     real_kdtree, real_nearest = chamfer_module.kdtree, chamfer_module.nearest_distances
 
-    def counting_kdtree(points: np.ndarray) -> cKDTree:
+    def counting_kdtree(points: np.ndarray) -> PointTree:
         builds.append(len(points))
         return real_kdtree(points)
 
@@ -424,7 +424,7 @@ def test_gt_tree_is_built_once_per_object(monkeypatch: pytest.MonkeyPatch) -> No
     first, second = Completion(points=pred), Completion(points=pred[::-1].copy())
     v1 = ChamferL2().compute(first, obj, make_context())
     tree = obj.cache["gt_tree"]
-    assert isinstance(tree, cKDTree)
+    assert isinstance(tree, PointTree)
     np.testing.assert_array_equal(tree.data, gt.astype(np.float64))
     v2 = ChamferL2().compute(second, obj, make_context())
 
