@@ -6,23 +6,21 @@ cKDTree otherwise; on a GPU, when both sets are CUDA tensors, a chunked brute fo
 
 pykdtree and cKDTree return bitwise-identical float64 distances (both sum the three squared
 coordinate differences in order, then take the square root; neither x86_64 wheel uses FMA
-instructions), so the choice changes no score, only the time. Measured with
-``.venv/bin/python benchmarks/bench_chamfer.py --repeat 15 --brute-repeat 1`` (chamfer-l2 of
-30k x 30k points, medians of 15 interleaved rounds, both trees on 2 threads; pykdtree 1.4.3,
-scipy 1.17.1; a 2-core x86_64 CPU shared with a test run, load average 3.5 to 3.8):
+instructions), so the choice changes no score, only the time. Measured on a quiet 2-core x86_64
+CPU with ``.venv/bin/python benchmarks/bench_chamfer.py --repeat 15 --brute-repeat 0`` (chamfer-l2
+of 30k x 30k points, medians of 15 interleaved rounds, both trees on 2 threads; pykdtree 1.4.3,
+scipy 1.17.1; load average 0.4):
 
     path                          median s   vs cKDTree
-    cKDTree, cold                   0.0971        1.00x
-    cKDTree, GT tree cached         0.0698        1.00x
-    shapebench (pykdtree), cold     0.0571        1.70x
-    pykdtree, GT tree cached        0.0548        1.27x
+    cKDTree, cold                   0.0385        1.00x
+    cKDTree, GT tree cached         0.0316        1.00x
+    shapebench (pykdtree), cold     0.0202        1.90x
+    pykdtree, GT tree cached        0.0177        1.79x
 
-distances bitwise identical (0 of 60000 differ). The machine's load moved the times by up to
-2x between runs; over 20 runs of the command on that machine (load 1.8 to 3.8; ``--threads`` 1
-or 2), pykdtree was 1.20x to 2.23x faster cold (median 1.33x) and 0.95x to 2.20x with the GT
-tree cached (median 1.13x; three runs below 1.00x: 0.95x, 0.96x, 0.99x). The cached case is the
-runner's (one new tree per completion, two queries); most of the gain is the build (2.4 ms
-against 5.6 ms for 30k points), the queries differ less. benchmarks/README.md has the runs.
+distances bitwise identical (0 of 60000 differ). The cached case is the runner's (the ground
+truth's tree is built once per object, the completion's once per completion). Under load (a test
+suite beside it, load average 1.8 to 3.8) the gain shrank and varied: over 20 runs 1.20x to 2.23x
+cold (median 1.33x) and 0.95x to 2.20x cached (median 1.13x); benchmarks/README.md has the runs.
 
 pykdtree is used only for finite, non-empty point sets: on NaN or infinite coordinates it returns
 meaningless numbers where cKDTree raises ``ValueError``, and on an empty reference it raises where
