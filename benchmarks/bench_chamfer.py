@@ -48,10 +48,10 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from shapebench.api.types import Completion, Context, ObjectData, ObjectRef
 from shapebench.geometry import nearest
 from shapebench.geometry.nearest import as_numpy, brute_force_nearest, nearest_distances
 from shapebench.metrics.chamfer import ChamferL2
-from shapebench.types import Completion, Context, ObjectData, ObjectRef
 
 REF = ObjectRef(id="bench", category="bench")
 

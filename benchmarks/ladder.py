@@ -42,9 +42,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from shapebench.dataset import Dataset
-from shapebench.hashing import stable_seed
-from shapebench.types import (
+from shapebench.api.dataset import Dataset
+from shapebench.api.types import (
     NOVEL,
     TRAIN,
     TRAINED,
@@ -54,6 +53,7 @@ from shapebench.types import (
     ObjectRef,
     Supervision,
 )
+from shapebench.hashing import stable_seed
 
 if TYPE_CHECKING:
     import torch
@@ -175,7 +175,7 @@ def gauss_scores(objects: list[ObjectData], contexts: list[Context]) -> list[flo
 
 def untrained(method, n_shapes: int, seed: int):
     """``method`` holding a freshly initialised module, as ``load_checkpoint`` would leave it."""
-    from shapebench.lightning_fit import device, seed_training
+    from shapebench.train.lightning_fit import device, seed_training
 
     seed_training(seed)
     method.device = device()
@@ -191,7 +191,7 @@ def epochs_for(steps: int, n_objects: int, batch_shapes: int) -> int:
 
 def run_rung(resolved, dataset: Dataset, rung: str, args, workdir: Path) -> RungResult:
     """Train ``resolved`` (a ResolvedMethod) on the rung's objects and score it."""
-    from shapebench.method import TrainerOptions, TrainingContext
+    from shapebench.api.method import TrainerOptions, TrainingContext
 
     refs = rung_refs(dataset, rung, args.category)
     subset = Subset(dataset, refs)
@@ -241,10 +241,10 @@ def decode_trained_codes(method, refs: list[ObjectRef], objects: list[ObjectData
 
 def resolve(args):
     """The method and the synthetic dataset with the profile and the overrides."""
+    from shapebench.api.options import parse_assignments
     from shapebench.config import make_settings
-    from shapebench.options import parse_assignments
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
 
     settings = make_settings(None, args.cache_dir, args.profile, tempfile.gettempdir())
     reg = get_registry()

@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from shapebench.types import TRAIN, TRAINED, Completion, Context, ObjectData, ObjectRef
+from shapebench.api.types import TRAIN, TRAINED, Completion, Context, ObjectData, ObjectRef
 
 VALIDATION = "validation"
 #: A test-time objective: one loss per object (B,) for codes (B, d).
@@ -101,7 +101,7 @@ def compare_saved(rows: list[tuple[str, int, list[float]]],
     """Pair each row with the row of the same label and size in ``saved`` (a :func:`save_rows`
     file, read before anything was written), if both scored the same objects from the same
     context points; failed objects (NaN) are left out of the pair and counted."""
-    from shapebench.board_stats import paired_p
+    from shapebench.boards.stats import paired_p
 
     differs = [key for key, value in meta.items() if saved.get(key) != value]
     if differs:
@@ -230,10 +230,10 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     # read before anything is written: --save and --against may name the same file
     saved = json.loads(args.against.read_text()) if args.against else None
 
+    from shapebench.api.options import parse_assignments
     from shapebench.config import make_settings
-    from shapebench.options import parse_assignments
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset, resolve_method
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
 
     settings = make_settings(None, args.cache_dir, args.profile, tempfile.gettempdir())
     reg = get_registry()

@@ -23,10 +23,10 @@ import argparse
 
 import numpy as np
 
-from shapebench.board_stats import paired_p
+from shapebench.boards.leaderboard import build_board
+from shapebench.boards.stats import paired_p
 from shapebench.config import make_settings
-from shapebench.leaderboard import build_board
-from shapebench.tracking import Tracker
+from shapebench.store.tracking import Tracker
 
 
 def compare(board, reference: str) -> list[str]:

@@ -10,7 +10,7 @@ finished training of that key (``--export-only``: never train), and writes the w
 optimiser state) and ``reference.json`` (key, command, versions, machine, wall time, final loss
 terms) to ``shapebench/reference_checkpoints/<family>/<key>/``. Folders of a family whose key is
 no longer the current one are removed unless ``--keep-stale``. Methods sharing a checkpoint
-(``msc`` and ``msc-noopt``) are trained once. See :mod:`shapebench.reference_checkpoints`.
+(``msc`` and ``msc-noopt``) are trained once. See :mod:`shapebench.train.references`.
 
 A training is exported only if it ran at the commit the tree is at now, with no uncommitted
 changes (the tags of its MLflow run): the key digests the method's code, not every module a
@@ -103,12 +103,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     from shapebench.config import make_settings
-    from shapebench.provenance import git_commit
-    from shapebench.reference_checkpoints import SHIPPED, export
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset, resolve_method
-    from shapebench.sweep import load_sweep, sweep_methods
-    from shapebench.training import (
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.store.provenance import git_commit
+    from shapebench.sweeps.spec import load_sweep, sweep_methods
+    from shapebench.train.references import SHIPPED, export
+    from shapebench.train.training import (
         apply_trainer,
         checkpoint_dir,
         checkpoint_key,

@@ -4,10 +4,10 @@ Everything a plugin needs is importable from here::
 
     from shapebench import Completion, Context, Method, Metric, MetricCard, hookimpl
 
-:data:`hookimpl` marks the hook implementations declared in :mod:`shapebench.hookspecs`; the
-interfaces live in :mod:`shapebench.method`, :mod:`shapebench.dataset` and
-:mod:`shapebench.metric`, the data passed between them in :mod:`shapebench.types`.
-``docs/api.md`` is their reference (``python -m shapebench.apidoc`` writes it).
+:data:`hookimpl` marks the hook implementations declared in :mod:`shapebench.api.hookspecs`; the
+interfaces live in :mod:`shapebench.api.method`, :mod:`shapebench.api.dataset` and
+:mod:`shapebench.api.metric`, the data passed between them in :mod:`shapebench.api.types`.
+``docs/api.md`` is their reference (``python -m shapebench.cli.apidoc`` writes it).
 
 Only :data:`hookimpl` is imported eagerly: the other names are loaded on first access (PEP 562),
 so that ``import shapebench`` (and ``shapebench --help``) imports neither numpy nor torch.
@@ -18,33 +18,36 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from shapebench.hookspecs import hookimpl
+from shapebench import _moved
+from shapebench.api.hookspecs import hookimpl
+
+_moved.install()  # the import paths of 0.1 keep working, with a warning (shapebench/_moved.py)
 
 __version__ = "0.1.0"
 
 #: Public name -> the module that defines it.
 _LAZY: dict[str, str] = {
-    "Method": "shapebench.method",
-    "TrainingContext": "shapebench.method",
-    "TrainerOptions": "shapebench.method",
-    "Dataset": "shapebench.dataset",
-    "MeshDataset": "shapebench.dataset",
-    "MeshOptions": "shapebench.dataset",
-    "ObjectLoadError": "shapebench.dataset",
-    "Metric": "shapebench.metric",
-    "MetricCard": "shapebench.metric",
-    "UNIT_SPHERE_FRAME": "shapebench.metric",
-    "Context": "shapebench.types",
-    "Completion": "shapebench.types",
-    "ObjectData": "shapebench.types",
-    "ObjectRef": "shapebench.types",
-    "Category": "shapebench.types",
-    "Supervision": "shapebench.types",
-    "TRAIN": "shapebench.types",
-    "TRAINED": "shapebench.types",
-    "NOVEL": "shapebench.types",
-    "NoOptions": "shapebench.options",
-    "ShapebenchError": "shapebench.errors",
+    "Method": "shapebench.api.method",
+    "TrainingContext": "shapebench.api.method",
+    "TrainerOptions": "shapebench.api.method",
+    "Dataset": "shapebench.api.dataset",
+    "MeshDataset": "shapebench.api.dataset",
+    "MeshOptions": "shapebench.api.dataset",
+    "ObjectLoadError": "shapebench.api.dataset",
+    "Metric": "shapebench.api.metric",
+    "MetricCard": "shapebench.api.metric",
+    "UNIT_SPHERE_FRAME": "shapebench.api.metric",
+    "Context": "shapebench.api.types",
+    "Completion": "shapebench.api.types",
+    "ObjectData": "shapebench.api.types",
+    "ObjectRef": "shapebench.api.types",
+    "Category": "shapebench.api.types",
+    "Supervision": "shapebench.api.types",
+    "TRAIN": "shapebench.api.types",
+    "TRAINED": "shapebench.api.types",
+    "NOVEL": "shapebench.api.types",
+    "NoOptions": "shapebench.api.options",
+    "ShapebenchError": "shapebench.api.errors",
 }
 
 # Written out, not built from _LAZY, so that linters see the re-exports (a test compares them).
@@ -75,12 +78,12 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does the importing
-    from shapebench.dataset import Dataset, MeshDataset, MeshOptions, ObjectLoadError
-    from shapebench.errors import ShapebenchError
-    from shapebench.method import Method, TrainerOptions, TrainingContext
-    from shapebench.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
-    from shapebench.options import NoOptions
-    from shapebench.types import (
+    from shapebench.api.dataset import Dataset, MeshDataset, MeshOptions, ObjectLoadError
+    from shapebench.api.errors import ShapebenchError
+    from shapebench.api.method import Method, TrainerOptions, TrainingContext
+    from shapebench.api.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
+    from shapebench.api.options import NoOptions
+    from shapebench.api.types import (
         NOVEL,
         TRAIN,
         TRAINED,

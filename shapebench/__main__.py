@@ -1,4 +1,4 @@
-from shapebench.cli import main
+from shapebench.cli.app import main
 
 if __name__ == "__main__":
     main()

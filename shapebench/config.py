@@ -22,7 +22,7 @@ from typing import Any
 
 import yaml
 
-from shapebench.errors import ConfigError, UnknownNameError
+from shapebench.api.errors import ConfigError, UnknownNameError
 
 DEFAULT_PROFILE = "quick"
 WORKSPACE_DIRNAME = "shapebench-runs"

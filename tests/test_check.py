@@ -1,4 +1,5 @@
-"""``shapebench check`` and :mod:`shapebench.testing` (issue 12): the built-ins pass; a plugin that
+"""``shapebench check`` and :mod:`shapebench.registry.testing` (issue 12): the built-ins pass; a
+plugin that
 breaks a rule fails that check, with the reason, and the command exits with status 1."""
 
 from __future__ import annotations
@@ -14,13 +15,11 @@ import numpy as np
 import pytest
 from conftest import pip_install_to
 
-from shapebench import check as checks
-from shapebench.dataset import Dataset
-from shapebench.errors import ConfigError, UnknownNameError
-from shapebench.method import Method
-from shapebench.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
-from shapebench.testing import PluginCheckFailed, check_dataset, check_method, check_metric
-from shapebench.types import (
+from shapebench.api.dataset import Dataset
+from shapebench.api.errors import ConfigError, UnknownNameError
+from shapebench.api.method import Method
+from shapebench.api.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
+from shapebench.api.types import (
     NOVEL,
     TRAIN,
     TRAINED,
@@ -30,6 +29,8 @@ from shapebench.types import (
     ObjectData,
     ObjectRef,
 )
+from shapebench.registry import check as checks
+from shapebench.registry.testing import PluginCheckFailed, check_dataset, check_method, check_metric
 
 # -- a plugin that breaks one rule per component, installed through a real entry point -----------
 
@@ -253,7 +254,8 @@ def test_a_plugin_that_fails_to_import_fails_its_check(shapebench, broken_site):
     )
 
 
-# -- shapebench.testing, in this process ------------------------------------------------------
+# -- shapebench.registry.testing, in this process
+# ------------------------------------------------------
 
 
 class _NaNMethod(Method):
@@ -368,7 +370,7 @@ def test_options_that_do_not_round_trip_fail():
 
 
 def test_unknown_distribution_lists_the_installed_ones():
-    from shapebench.registry import get_registry
+    from shapebench.registry.discovery import get_registry
 
     with pytest.raises(UnknownNameError, match="available: .*shapebench"):
         checks.distribution_components(get_registry(), "shapebench-nope")
@@ -388,13 +390,13 @@ def test_summary_reads_like_pytest():
 
 @pytest.mark.slow  # runs pytest on a plugin's test file in a subprocess
 def test_a_plugin_test_suite_uses_the_fixture_and_helpers(tmp_path):
-    (tmp_path / "conftest.py").write_text('pytest_plugins = ["shapebench.testing"]\n')
+    (tmp_path / "conftest.py").write_text('pytest_plugins = ["shapebench.registry.testing"]\n')
     (tmp_path / "test_plugin.py").write_text(
         textwrap.dedent("""
         import numpy as np
         import pytest
         from shapebench import Completion, Method
-        from shapebench.testing import check_method
+        from shapebench.registry.testing import check_method
 
         class Wobbly(Method):
             def complete(self, context, n_points):

@@ -6,16 +6,16 @@ from __future__ import annotations
 import pytest
 from conftest import TINY, TINY_CONTEXTS
 
-from shapebench.cluster import (
+from shapebench.api.errors import ConfigError, ShapebenchError
+from shapebench.config import make_settings
+from shapebench.sweeps.cluster import (
     LauncherConfig,
     _ranks,
     check_tracking,
     launcher_config,
     read_manifest,
 )
-from shapebench.config import make_settings
-from shapebench.errors import ConfigError, ShapebenchError
-from shapebench.sweep import load_sweep
+from shapebench.sweeps.spec import load_sweep
 
 
 def test_launcher_block_then_command_line_then_per_method_overrides():

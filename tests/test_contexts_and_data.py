@@ -7,10 +7,10 @@ import pytest
 from shapebench_gauss.method import GaussDensification, GaussOptions
 from shapebench_synthetic.dataset import SyntheticDataset, SyntheticOptions
 
-from shapebench.contexts import ContextStore
-from shapebench.errors import ConfigError
-from shapebench.options import build, parse_assignments
-from shapebench.types import NOVEL, TRAIN, TRAINED, Context, ObjectData, ObjectRef
+from shapebench.api.contexts import ContextStore
+from shapebench.api.errors import ConfigError
+from shapebench.api.options import build, parse_assignments
+from shapebench.api.types import NOVEL, TRAIN, TRAINED, Context, ObjectData, ObjectRef
 
 
 def _data(n: int = 3000) -> ObjectData:
@@ -78,7 +78,7 @@ def test_option_parsing_and_validation():
 
 
 def test_training_samples_are_cached_apart_and_leave_evaluation_data_alone(tmp_path):
-    from shapebench.types import Supervision
+    from shapebench.api.types import Supervision
 
     small = SyntheticOptions(test_per_category=1, train_per_category=1, surface_candidates=2000,
                              gt_points=1000, sdf_samples=5000, complete_points=512)  # fmt: skip

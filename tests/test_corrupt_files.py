@@ -21,16 +21,16 @@ from shapebench_msc.method import MSC
 from shapebench_synthetic.dataset import SyntheticDataset, SyntheticOptions
 from test_training_repro import TINY_MSC, _meshes, _Shapes
 
-from shapebench.checkpoints import (
+from shapebench.api.contexts import CONTEXTS_VERSION, ContextStore
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.method import TrainerOptions, TrainingContext
+from shapebench.api.types import TRAINED, ObjectData, ObjectRef
+from shapebench.train.checkpoints import (
     CorruptFileWarning,
     checkpoint_is_readable,
     key_of,
     verify_checkpoint,
 )
-from shapebench.contexts import CONTEXTS_VERSION, ContextStore
-from shapebench.errors import ShapebenchError
-from shapebench.method import TrainerOptions, TrainingContext
-from shapebench.types import TRAINED, ObjectData, ObjectRef
 
 SMALL = SyntheticOptions(test_per_category=1, train_per_category=1, surface_candidates=2000,
                          gt_points=1000)  # fmt: skip
@@ -235,7 +235,7 @@ def test_run_with_a_pickle_payload_checkpoint_is_one_clean_error(shapebench, tmp
 def test_every_trainable_method_saves_only_what_weights_only_loads(tmp_path, name):
     """Hyper-parameters are plain values: a checkpoint of each built-in module loads with
     ``weights_only=True`` into the same weights (a dataclass or numpy value would be refused)."""
-    from shapebench.registry import get_registry
+    from shapebench.registry.discovery import get_registry
 
     cls = get_registry().load("method", name)
     method = cls(cls.Options())

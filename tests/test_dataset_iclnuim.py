@@ -29,9 +29,9 @@ from shapebench_iclnuim import fusion  # noqa: E402
 from shapebench_iclnuim.dataset import ICLNUIMDataset, ICLNUIMOptions  # noqa: E402
 from shapebench_iclnuim.sequence import discover, read_frames  # noqa: E402
 
-from shapebench.dataset import ObjectLoadError  # noqa: E402
-from shapebench.errors import DataNotFoundError  # noqa: E402
-from shapebench.types import Category, ObjectRef  # noqa: E402
+from shapebench.api.dataset import ObjectLoadError  # noqa: E402
+from shapebench.api.errors import DataNotFoundError  # noqa: E402
+from shapebench.api.types import Category, ObjectRef  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgbd" / "icl-nuim-office-traj0"
 K = fusion.Intrinsics(481.20, -480.00, 319.5, 239.5, 5000.0)

@@ -16,9 +16,9 @@ except ModuleNotFoundError:  # the checkout was installed before this plugin exi
 
 from shapebench_meshes.dataset import MeshFolderDataset, MeshFolderOptions  # noqa: E402
 
-from shapebench.dataset import ObjectLoadError  # noqa: E402
-from shapebench.errors import ConfigError, DataNotFoundError  # noqa: E402
-from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef  # noqa: E402
+from shapebench.api.dataset import ObjectLoadError  # noqa: E402
+from shapebench.api.errors import ConfigError, DataNotFoundError  # noqa: E402
+from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 REAL = {

@@ -24,9 +24,9 @@ except ModuleNotFoundError:  # the checkout was installed before this plugin exi
 
 from shapebench_shapenet.dataset import ShapeNetDataset, ShapeNetOptions  # noqa: E402
 
-from shapebench.dataset import ObjectLoadError  # noqa: E402
-from shapebench.errors import ConfigError, DataNotFoundError  # noqa: E402
-from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision  # noqa: E402
+from shapebench.api.dataset import ObjectLoadError  # noqa: E402
+from shapebench.api.errors import ConfigError, DataNotFoundError  # noqa: E402
+from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision  # noqa: E402
 
 CHAIR, PLANE = "03001627", "02691156"  # trained categories of the paper
 BUS, BENCH = "02924116", "02828884"  # novel categories of the paper

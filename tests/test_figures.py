@@ -12,9 +12,9 @@ import pytest
 from conftest import TINY
 from matplotlib.collections import PathCollection, PolyCollection
 
-from shapebench import figures
-from shapebench.cost import describe_training, device_count, row_costs
-from shapebench.pictures import is_blank
+from shapebench.boards import figures
+from shapebench.boards.cost import describe_training, device_count, row_costs
+from shapebench.evaluate.pictures import is_blank
 
 
 def _scored(labels: dict[str, tuple[float, float]], contexts=(50, 100, 300, 1000), n=12):
@@ -106,7 +106,7 @@ def test_save_writes_png_and_svg_and_refuses_a_blank_figure(tmp_path):
 
 
 def test_training_summary_counts_device_hours_and_prints_them(capsys):
-    from shapebench.lightning_fit import report_summary, training_summary
+    from shapebench.train.lightning_fit import report_summary, training_summary
 
     device = SimpleNamespace(type="cpu")
     trainer = SimpleNamespace(
@@ -162,9 +162,9 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
 
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_leaderboard_writes_figures_and_cost_columns_and_logs_them(with_example):
+    from shapebench.boards.leaderboard import build_board
     from shapebench.config import make_settings
-    from shapebench.leaderboard import build_board
-    from shapebench.tracking import Tracker
+    from shapebench.store.tracking import Tracker
 
     sb = with_example
     for method in ("gauss", "example-sphere"):

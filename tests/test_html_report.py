@@ -20,7 +20,7 @@ from browser_support import keep_screenshot, launch_chromium
 from conftest import TINY, Shapebench
 from matplotlib.image import imread
 
-from shapebench.pictures import is_blank
+from shapebench.evaluate.pictures import is_blank
 
 pytestmark = pytest.mark.slow  # runs the CLI, MLflow and a browser
 
@@ -171,8 +171,8 @@ class _Primitives:
 
     @staticmethod
     def build(tmp_path: Path):
-        from shapebench.dataset import MeshDataset
-        from shapebench.types import NOVEL, Category, ObjectRef
+        from shapebench.api.dataset import MeshDataset
+        from shapebench.api.types import NOVEL, Category, ObjectRef
 
         shapes = {
             "box": lambda: trimesh.creation.box((1.0, 0.6, 0.4)),
@@ -198,15 +198,15 @@ class _Primitives:
 
 
 def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
+    from shapebench.api.method import Method
+    from shapebench.api.types import NOVEL, Completion
+    from shapebench.boards.html_report import build_report
     from shapebench.config import make_settings
-    from shapebench.html_report import build_report
-    from shapebench.method import Method
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_method, resolve_metrics
-    from shapebench.runner import Runner, RunPlan
-    from shapebench.tracking import Tracker
-    from shapebench.types import NOVEL, Completion
-    from shapebench.variant import make_variant
+    from shapebench.evaluate.runner import Runner, RunPlan
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_method, resolve_metrics
+    from shapebench.registry.variant import make_variant
+    from shapebench.store.tracking import Tracker
 
     class Posterior(Method):
         """Completions with posterior samples whose spread grows with the height (y); fails on

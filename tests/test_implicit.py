@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from shapebench.api.types import Context, ObjectRef
 from shapebench.implicit.completion import initial_latents, optimise_latents
 from shapebench.implicit.networks import DeepSDFDecoder, IGRDecoder, MSCEncoder
-from shapebench.types import Context, ObjectRef
 
 
 def _sphere(n: int, r: float = 0.5, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:

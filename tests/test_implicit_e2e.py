@@ -72,7 +72,7 @@ def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
     (noopt,) = [c for c in cells if c.data.tags["method"] == "msc-noopt"]
     table = pd.read_csv(client.download_artifacts(noopt.info.run_id, "per_object.csv",
                                                   str(shapebench.workspace / "noopt")))  # fmt: skip
-    from shapebench.pictures import picture_objects
+    from shapebench.evaluate.pictures import picture_objects
 
     pictured = set(picture_objects(table.object.tolist()))
     assert len(pictured) == 3

@@ -17,7 +17,7 @@ import pytest
 import torch
 from conftest import TINY
 
-from shapebench.lightning_fit import checkpoint_epochs
+from shapebench.train.lightning_fit import checkpoint_epochs
 
 pytestmark = pytest.mark.slow  # every test here starts the CLI or trains
 
@@ -171,8 +171,8 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
     from shapebench_msc.method import MSC
     from test_training_repro import TINY_MSC, _meshes, _Shapes
 
-    import shapebench.lightning_fit as lf
-    from shapebench.method import TrainerOptions, TrainingContext
+    import shapebench.train.lightning_fit as lf
+    from shapebench.api.method import TrainerOptions, TrainingContext
 
     def fit(name: str) -> Path:
         trainer = TrainerOptions(accelerator="cpu", devices=1, seed=3)

@@ -14,9 +14,9 @@ import pytest
 from conftest import PLUGINS, TINY, pip_install_to
 from scipy.stats import wilcoxon
 
+from shapebench.api.protocol import Protocol
 from shapebench.config import make_settings
-from shapebench.protocol import Protocol
-from shapebench.variant import auto_label, make_variant
+from shapebench.registry.variant import auto_label, make_variant
 
 RUN = ("-d", "synthetic", *TINY, "-q")
 
@@ -60,10 +60,10 @@ def test_max_epochs_is_part_of_the_checkpoint_key_and_the_row(with_example):
 
 
 def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
-    from shapebench.method import TrainerOptions
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset, resolve_method
-    from shapebench.training import apply_trainer, checkpoint_key
+    from shapebench.api.method import TrainerOptions
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.training import apply_trainer, checkpoint_key
 
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
     reg = get_registry()
@@ -85,8 +85,7 @@ def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
 
 
 def test_code_digest_follows_the_source(tmp_path, monkeypatch):
-    from shapebench import code_digest as cd
-
+    from shapebench.registry import code_digest as cd
     pkg = tmp_path / "digest_probe"
     pkg.mkdir()
     (pkg / "__init__.py").write_text("")
@@ -106,8 +105,7 @@ def test_code_digest_follows_the_source(tmp_path, monkeypatch):
 def test_code_digest_does_not_depend_on_where_the_code_lives(tmp_path, monkeypatch):
     """Two checkouts (or a cluster node and a laptop) with the same code share keys, also when a
     method's package and a shared module it names live under different roots."""
-    from shapebench import code_digest as cd
-
+    from shapebench.registry import code_digest as cd
     def install(method_root: Path, shared_root: Path) -> str:
         for name in [m for m in sys.modules if m.startswith(("probe_m", "probe_shared"))]:
             sys.modules.pop(name)
@@ -220,8 +218,8 @@ def test_context_normals_are_a_protocol_option_not_a_paper_row(shapebench):
 
 
 def test_the_context_store_gives_normals_only_when_asked(tmp_path):
-    from shapebench.contexts import ContextStore
-    from shapebench.types import ObjectData, ObjectRef
+    from shapebench.api.contexts import ContextStore
+    from shapebench.api.types import ObjectData, ObjectRef
 
     pts = np.random.default_rng(0).normal(size=(200, 3)).astype(np.float32)
     data = ObjectData(ObjectRef("a", "c"), pts, pts, pts)
@@ -236,8 +234,8 @@ def test_the_context_store_gives_normals_only_when_asked(tmp_path):
 
 
 def test_split_options_keep_the_preprocessing_cache(tmp_path):
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset
 
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
     reg = get_registry()
@@ -353,8 +351,7 @@ def test_failure_rule_and_tied_marks_recomputed_from_the_per_object_tables(with_
 
 
 def test_the_failure_rule_on_a_known_table():
-    from shapebench import board_stats
-
+    from shapebench.boards import stats as board_stats
     rows = [("a", "x", "ok", 1.0), ("a", "y", "ok", 3.0), ("a", "z", "failed", np.nan),
             ("b", "x", "ok", 2.0), ("b", "y", "failed", np.nan), ("b", "z", "failed", np.nan),
             ("c", "x", "failed", np.nan), ("c", "y", "failed", np.nan),
@@ -373,8 +370,8 @@ def test_the_failure_rule_on_a_known_table():
 
 
 def test_the_paper_column_stands_only_beside_the_unit_diameter_card():
-    from shapebench.leaderboard import Board, Row, render_markdown, tidy_csv
-    from shapebench.paper import paper_table
+    from shapebench.boards.leaderboard import Board, Row, render_markdown, tidy_csv
+    from shapebench.boards.paper import paper_table
 
     raw = pd.DataFrame([{"variant": "v", "label": "gauss", "context": 50, "mean": 1.0,
                          "std": 0.5, "mean_ok": 1.0, "std_ok": 0.5, "n": 3, "n_ok": 3,

@@ -11,13 +11,13 @@ import pytest
 import torch
 from conftest import SMALL_IGR, TINY, load_benchmark
 
+from shapebench.api.types import NOVEL, TRAIN, TRAINED
 from shapebench.config import make_settings
-from shapebench.types import NOVEL, TRAIN, TRAINED
 
 
 def test_validation_objects_are_held_out_of_every_split(tmp_path):
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset
 
     probe = load_benchmark("latent_probe")
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)

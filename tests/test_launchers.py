@@ -11,8 +11,8 @@ import pytest
 from test_interruptions import processes_mentioning, wait_for
 from test_soak import SWEEP, all_runs, cell_runs, leaderboard, score_columns
 
-from shapebench.launchers import worker_argv
-from shapebench.protocol import SCORE_RTOL
+from shapebench.api.protocol import SCORE_RTOL
+from shapebench.sweeps.launchers import worker_argv
 
 
 def test_worker_command_line_replaces_the_launcher_options():
@@ -24,7 +24,7 @@ def test_worker_command_line_replaces_the_launcher_options():
 def cell_claimed(sb) -> bool:
     """Some process holds a cell's claim: it is computing that cell (cheaper to poll than the
     store, so that short cells are not missed)."""
-    from shapebench.locks import try_lock
+    from shapebench.store.locks import try_lock
 
     for path in (sb.workspace / "locks" / "cells").glob("*.lock"):
         lock = try_lock(path)

@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 from conftest import TINY, TINY_CONTEXTS
 
+from shapebench.api.errors import ShapebenchError
+from shapebench.boards.leaderboard import build_board
 from shapebench.config import make_settings
-from shapebench.errors import ShapebenchError
-from shapebench.leaderboard import build_board
-from shapebench.tracking import Tracker
+from shapebench.store.tracking import Tracker
 
 
 def _per_object(sb, method: str, k: int) -> pd.DataFrame:
@@ -99,7 +99,7 @@ def test_leaderboard_refuses_to_mix_metric_cards(tmp_path):
 
 
 def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
-    from shapebench.leaderboard import _rows
+    from shapebench.boards.leaderboard import _rows
 
     def run(key: str, seed: int, start: int, ckpt: str) -> dict:
         return {"variant.key": key, "_label": key, "method": key, "method.display_name": key,
@@ -121,7 +121,7 @@ def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
 def test_splits_come_in_the_order_the_dataset_declares(tmp_path):
     """Trained before novel (the paper's Table 1, then Table 2), not alphabetically; a split no
     dataset declares comes last; a dataset not installed here falls back to the built-in order."""
-    from shapebench.leaderboard import splits_with_runs
+    from shapebench.boards.leaderboard import splits_with_runs
 
     settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path, "quick", tmp_path)
     tracker = Tracker(settings)

@@ -33,7 +33,7 @@ def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
     # A cell key promises scores equal to a relative SCORE_RTOL (other thread counts sum floats
     # in another order), not bitwise: a merge keeps the target's cell and reports a source whose
     # scores of that key differ by more.
-    from shapebench.protocol import SCORE_RTOL
+    from shapebench.api.protocol import SCORE_RTOL
 
     (k50,) = [r for r in jobs[1].cell_runs("synthetic-novel")
               if r.data.tags["context_size"] == "50"]  # fmt: skip

@@ -19,18 +19,26 @@ from shapebench_igr.method import IGR
 from shapebench_msc.method import MSC, MSCNoOpt
 from shapebench_occnet.method import OccNet
 
-from shapebench import options as opts
+from shapebench.api import options as opts
+from shapebench.api.dataset import Dataset
+from shapebench.api.errors import ConfigError
+from shapebench.api.method import TrainerOptions, TrainingContext
+from shapebench.api.types import (
+    TRAIN,
+    TRAINED,
+    Category,
+    Context,
+    ObjectData,
+    ObjectRef,
+    Supervision,
+)
 from shapebench.config import load_profile, plugin_overrides
-from shapebench.dataset import Dataset
-from shapebench.errors import ConfigError
 from shapebench.implicit.completion import mesh_completion, stack_contexts
 from shapebench.implicit.losses import offsurface_samples
 from shapebench.implicit.networks import MSCEncoder
 from shapebench.implicit.recipes import PAPER_OPT_LR
-from shapebench.method import TrainerOptions, TrainingContext
 from shapebench.preprocess.samples import occupancy_samples, sdf_samples
-from shapebench.registry import get_registry
-from shapebench.types import TRAIN, TRAINED, Category, Context, ObjectData, ObjectRef, Supervision
+from shapebench.registry.discovery import get_registry
 
 AUTO_DECODERS = {"igr": IGR, "deepsdf": DeepSDF, "msc": MSC}
 OPTIMISER = ("opt_steps", "opt_lr", "opt_scale_by_error")

@@ -18,8 +18,9 @@ import torch
 from scipy.spatial import cKDTree
 
 import shapebench.metrics.chamfer as chamfer_module
+from shapebench.api.metric import Metric
+from shapebench.api.types import Completion, Context, ObjectData, ObjectRef
 from shapebench.geometry.nearest import PointTree, brute_force_nearest, nearest_distances
-from shapebench.metric import Metric
 from shapebench.metrics.chamfer import (
     Chamfer,
     ChamferL1,
@@ -28,7 +29,6 @@ from shapebench.metrics.chamfer import (
     ChamferL2Asym,
 )
 from shapebench.metrics.fscore import FScore
-from shapebench.types import Completion, Context, ObjectData, ObjectRef
 
 CHAMFERS: list[Chamfer] = [ChamferL2(), ChamferL1(), ChamferL2Asym(), ChamferL1Asym()]
 ALL_METRICS: list[Metric] = [*CHAMFERS, FScore()]

@@ -14,10 +14,10 @@ import pytest
 from conftest import TINY, Shapebench
 
 from shapebench.config import make_settings
-from shapebench.listing import list_runs
-from shapebench.provenance import git_commit
-from shapebench.runner import Runner
-from shapebench.tracking import (
+from shapebench.evaluate.runner import Runner
+from shapebench.store.listing import list_runs
+from shapebench.store.provenance import git_commit
+from shapebench.store.tracking import (
     TRAINING_KIND,
     VIEW_KEY,
     VIEW_TAG_PREFIX,

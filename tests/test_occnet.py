@@ -12,10 +12,10 @@ import trimesh
 from shapebench_occnet.method import OccNet
 from shapebench_occnet.module import OccNetModule
 
-from shapebench.dataset import Dataset
-from shapebench.method import TrainerOptions, TrainingContext
+from shapebench.api.dataset import Dataset
+from shapebench.api.method import TrainerOptions, TrainingContext
+from shapebench.api.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
 from shapebench.preprocess.samples import occupancy_from_sdf, occupancy_samples, sdf_samples
-from shapebench.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
 
 
 def _labels_match(mesh: trimesh.Trimesh, truth, margin: float) -> float:

@@ -10,8 +10,8 @@ from shapebench_pcn.method import PCN
 from shapebench_pcn.module import PCNModule
 from shapebench_pcn.network import PCNNetwork, folding_grid
 
+from shapebench.api.types import Completion, ObjectData, ObjectRef
 from shapebench.metrics.chamfer import ChamferL2
-from shapebench.types import Completion, ObjectData, ObjectRef
 
 
 def test_folding_grid_has_the_official_shape_and_spacing():

@@ -12,8 +12,8 @@ import trimesh
 from matplotlib.collections import PathCollection
 from matplotlib.image import imread
 
-from shapebench import pictures
-from shapebench.pictures import (
+from shapebench.evaluate import pictures
+from shapebench.evaluate.pictures import (
     VIEWS,
     is_blank,
     object_figure,

@@ -17,14 +17,14 @@ import pytest
 from conftest import ROOT, TINY, pip_install_to
 
 import shapebench
-from shapebench import apidoc
-from shapebench.errors import ShapebenchError
-from shapebench.metric import UNIT_SPHERE_FRAME, MetricCard, check_metric
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.metric import UNIT_SPHERE_FRAME, MetricCard, check_metric
+from shapebench.api.types import Completion, Context, ObjectData, ObjectRef
+from shapebench.cli import apidoc
 from shapebench.metrics.chamfer import ChamferL1Asym, ChamferL2
 from shapebench.metrics.fscore import FScore
-from shapebench.registry import PluginWarning, discover
-from shapebench.resolve import resolve_metrics
-from shapebench.types import Completion, Context, ObjectData, ObjectRef
+from shapebench.registry.discovery import PluginWarning, discover
+from shapebench.registry.resolve import resolve_metrics
 
 EXAMPLE = ROOT / "docs" / "examples" / "shapebench-hausdorff"
 PLUGIN_API = ["Method", "Metric", "MetricCard", "hookimpl", "Context", "Completion", "ObjectData",
@@ -40,7 +40,7 @@ def test_plugin_api_imports_from_the_top_level_without_torch():
         "import shapebench\n"
         "assert 'numpy' not in sys.modules, 'import shapebench must stay light'\n"
         f"from shapebench import {', '.join(PLUGIN_API)}\n"
-        "from shapebench.metric import Metric as M\n"
+        "from shapebench.api.metric import Metric as M\n"
         "assert Metric is M\n"
         "heavy = [m for m in ('torch', 'pytorch_lightning', 'mlflow') if m in sys.modules]\n"
         "assert not heavy, heavy\n"
@@ -63,7 +63,7 @@ def test_all_lists_exactly_the_exports_and_each_resolves():
 def test_api_reference_is_up_to_date():
     committed = (ROOT / "docs" / "api.md").read_text()
     assert apidoc.render() == committed, (
-        "docs/api.md is out of date: run python -m shapebench.apidoc"
+        "docs/api.md is out of date: run python -m shapebench.cli.apidoc"
     )
 
 
@@ -99,7 +99,7 @@ def test_plugins_md_shows_the_example_files_as_they_are():
 
 
 def test_plugins_md_card_table_lists_every_field_and_allowed_value():
-    from shapebench.metric import COMBINES, DIRECTIONS, REDUCTIONS
+    from shapebench.api.metric import COMBINES, DIRECTIONS, REDUCTIONS
 
     doc = (ROOT / "docs" / "plugins.md").read_text().split("## The Metric interface")[1]
     for field in MetricCard.__dataclass_fields__:

@@ -11,8 +11,8 @@ from importlib.metadata import EntryPoint
 import pytest
 from conftest import TINY
 
-from shapebench.errors import PluginConflictError, UnknownNameError
-from shapebench.registry import PluginWarning, discover
+from shapebench.api.errors import PluginConflictError, UnknownNameError
+from shapebench.registry.discovery import PluginWarning, discover
 
 
 @pytest.mark.slow  # runs the CLI in subprocesses
@@ -88,8 +88,8 @@ def _run_fresh(code: str) -> object:
 def test_cli_startup_imports_neither_torch_nor_mlflow():
     code = (
         "import json, sys\n"
-        "from shapebench.cli import cli\n"
-        "from shapebench.registry import get_registry\n"
+        "from shapebench.cli.app import cli\n"
+        "from shapebench.registry.discovery import get_registry\n"
         "reg = get_registry(); assert reg.names('method')\n"
         f"print(json.dumps([m for m in {(*HEAVY, 'trimesh')!r} if m in sys.modules]))\n"
     )
@@ -97,12 +97,12 @@ def test_cli_startup_imports_neither_torch_nor_mlflow():
 
 
 def test_loading_every_registered_class_imports_no_torch():
-    """The lazy-torch rule (see shapebench.method) for every method, dataset and metric that the
+    """The lazy-torch rule (see shapebench.api.method) for every method, dataset and metric that the
     entry points register, built-ins included: importing the class's module must not import
     torch, since ``shapebench methods`` loads every method class to describe it."""
     code = (
         "import json, sys\n"
-        "from shapebench.registry import KINDS, get_registry\n"
+        "from shapebench.registry.discovery import KINDS, get_registry\n"
         "reg = get_registry()\n"
         "loaded, heavy = [], {}\n"
         "for kind in KINDS:\n"
@@ -126,7 +126,7 @@ def test_methods_command_imports_no_torch():
         "import atexit, json, sys\n"
         f"atexit.register(lambda: print(json.dumps([m for m in {HEAVY!r} if m in sys.modules])))\n"
         "sys.argv = ['shapebench', 'methods']\n"
-        "from shapebench.cli import main\n"
+        "from shapebench.cli.app import main\n"
         "main()\n"
     )
     assert _run_fresh(code) == []
@@ -197,7 +197,7 @@ def test_unknown_and_conflicting_names(tmp_path, monkeypatch):
 def test_metrics_listing_names_the_frames_and_each_metrics_factor(capsys):
     """`shapebench metrics`: every card depends on a frame, and the paper's figures are only
     comparable in unit-diameter; squared values convert by 1/4, unsquared by 1/2."""
-    from shapebench.report import describe_kind
+    from shapebench.cli.printing import describe_kind
 
     describe_kind("metric")
     out = capsys.readouterr().out

@@ -1,4 +1,5 @@
-"""``shapebench.prepare``: parallel preprocessing gives the same arrays, failures are reported."""
+"""``shapebench.evaluate.prepare``: parallel preprocessing gives the same arrays, failures are
+reported."""
 
 from __future__ import annotations
 
@@ -22,10 +23,10 @@ from shapebench_meshes.dataset import MeshFolderDataset, MeshFolderOptions  # no
 from shapebench_shapenet.dataset import ShapeNetDataset, ShapeNetOptions  # noqa: E402
 from shapebench_synthetic.dataset import SyntheticDataset, SyntheticOptions  # noqa: E402
 
-from shapebench.dataset import ObjectLoadError  # noqa: E402
-from shapebench.errors import ConfigError, ShapebenchError  # noqa: E402
-from shapebench.prepare import prepare  # noqa: E402
-from shapebench.types import NOVEL, TRAIN, TRAINED  # noqa: E402
+from shapebench.api.dataset import ObjectLoadError  # noqa: E402
+from shapebench.api.errors import ConfigError, ShapebenchError  # noqa: E402
+from shapebench.api.types import NOVEL, TRAIN, TRAINED  # noqa: E402
+from shapebench.evaluate.prepare import prepare  # noqa: E402
 
 TINY = MeshFolderOptions(surface_candidates=2000, gt_points=1500, viewpoints=30)
 

@@ -8,13 +8,13 @@ import pandas as pd
 import pytest
 import trimesh
 
+from shapebench.api.dataset import MeshDataset, ObjectLoadError
+from shapebench.api.types import NOVEL, Category, ObjectRef
 from shapebench.config import make_settings
-from shapebench.dataset import MeshDataset, ObjectLoadError
-from shapebench.registry import get_registry
-from shapebench.resolve import resolve_method, resolve_metrics
-from shapebench.runner import Runner, RunPlan
-from shapebench.tracking import Tracker
-from shapebench.types import NOVEL, Category, ObjectRef
+from shapebench.evaluate.runner import Runner, RunPlan
+from shapebench.registry.discovery import get_registry
+from shapebench.registry.resolve import resolve_method, resolve_metrics
+from shapebench.store.tracking import Tracker
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 REAL = ["common-3d-test-models/data/spot.obj", "common-3d-test-models/data/suzanne.obj"]

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from shapebench.metric import MetricCard
-from shapebench.records import CellRecord
+from shapebench.api.metric import MetricCard
+from shapebench.store.records import CellRecord
 
 CARD = MetricCard("chamfer-l2", 2, "mean", "symmetric", False, 1000.0, "unit-radius", 2000)
 

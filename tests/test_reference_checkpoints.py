@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from conftest import SMALL_IGR, TINY
 
-from shapebench import reference_checkpoints as refs
+from shapebench.train import references as refs
 
 RUN = ("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split", "novel",
        "--contexts", "50", "-q")  # fmt: skip
@@ -27,8 +27,8 @@ def _shipped() -> list[refs.Reference]:
 
 
 def test_shipped_references_load_and_hold_their_keys():
-    from shapebench.checkpoints import load_module, verify_checkpoint
-    from shapebench.registry import get_registry
+    from shapebench.registry.discovery import get_registry
+    from shapebench.train.checkpoints import load_module, verify_checkpoint
 
     shipped = _shipped()
     assert shipped, "shapebench ships no reference checkpoint"
@@ -53,9 +53,9 @@ def test_the_default_profile_still_resolves_to_a_shipped_reference(name, tmp_pat
     key: the quickstart would then train that method locally (minutes), and the reference would
     no longer be what the tables say. Retrain it (scripts/reference_checkpoints.py) and commit."""
     from shapebench.config import make_settings
-    from shapebench.registry import get_registry
-    from shapebench.resolve import resolve_dataset, resolve_method
-    from shapebench.training import (
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.training import (
         apply_trainer,
         checkpoint_key,
         find_reference,

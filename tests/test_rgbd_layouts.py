@@ -25,9 +25,9 @@ except ModuleNotFoundError:  # the checkout was installed before this plugin exi
 
 from shapebench_iclnuim.dataset import ICLNUIMDataset, ICLNUIMOptions  # noqa: E402
 
-from shapebench.dataset import ObjectLoadError  # noqa: E402
-from shapebench.errors import ConfigError  # noqa: E402
-from shapebench.types import ObjectRef  # noqa: E402
+from shapebench.api.dataset import ObjectLoadError  # noqa: E402
+from shapebench.api.errors import ConfigError  # noqa: E402
+from shapebench.api.types import ObjectRef  # noqa: E402
 
 W, H = 640, 480
 LO = np.array([-2.0, -1.2, -2.5])  # the room's walls, floor and ceiling (metres)

@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 from conftest import TINY, Shapebench
 
-from shapebench.cli import cli
+from shapebench.cli.app import cli
 
 RUN = ["-d", "synthetic", *TINY, "--split", "novel", "--contexts", "50,100"]
 
@@ -122,7 +122,7 @@ def test_methods_profile_shows_the_values_in_effect():
     from dataclasses import fields
 
     from shapebench.config import load_profile, plugin_overrides
-    from shapebench.registry import get_registry
+    from shapebench.registry.discovery import get_registry
 
     cls = get_registry().get("method", "deepsdf").load()
     defaults = {f.name: f.default for f in fields(cls.Options)}

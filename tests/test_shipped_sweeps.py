@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 from shapebench.config import make_settings
-from shapebench.registry import get_registry
-from shapebench.resolve import resolve_dataset, resolve_method
-from shapebench.sweep import load_sweep, sweep_methods
-from shapebench.training import apply_trainer, checkpoint_key, profile_trainer
+from shapebench.registry.discovery import get_registry
+from shapebench.registry.resolve import resolve_dataset, resolve_method
+from shapebench.sweeps.spec import load_sweep, sweep_methods
+from shapebench.train.training import apply_trainer, checkpoint_key, profile_trainer
 
 SWEEPS = sorted((Path(__file__).parent.parent / "configs" / "sweeps").glob("*.yaml"))
 

@@ -73,7 +73,7 @@ def test_sweep_resumes_after_kill_9_without_duplicates(with_example, tmp_path):
 def test_sweep_progress_counts_cells_and_extrapolates_from_computed_ones(monkeypatch):
     from types import SimpleNamespace
 
-    import shapebench.sweep as sweep_mod
+    import shapebench.sweeps.spec as sweep_mod
 
     clock = iter([0.0, 60.0, 120.0])
     monkeypatch.setattr("time.monotonic", lambda: next(clock))
@@ -93,7 +93,7 @@ def test_sweep_progress_counts_cells_and_extrapolates_from_computed_ones(monkeyp
 def test_sweep_progress_leaves_training_time_out_of_the_estimate(monkeypatch):
     from types import SimpleNamespace
 
-    import shapebench.sweep as sweep_mod
+    import shapebench.sweeps.spec as sweep_mod
 
     clock = iter([0.0, 660.0])
     monkeypatch.setattr("time.monotonic", lambda: next(clock))

@@ -11,9 +11,9 @@ import torch
 import trimesh
 from shapebench_msc.method import MSC
 
-from shapebench.dataset import Dataset
-from shapebench.method import TrainerOptions, TrainingContext
-from shapebench.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
+from shapebench.api.dataset import Dataset
+from shapebench.api.method import TrainerOptions, TrainingContext
+from shapebench.api.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
 
 pytestmark = pytest.mark.slow  # every test trains with Lightning
 

@@ -22,8 +22,8 @@ import pytest
 from browser_support import wait_http
 from conftest import Shapebench, free_port
 
-from shapebench import ui
-from shapebench.ui import run_server
+from shapebench.store import ui
+from shapebench.store.ui import run_server
 
 pytestmark = [pytest.mark.server, pytest.mark.slow]  # starts servers and CLI subprocesses
 

@@ -35,7 +35,7 @@ Depth pixels holding 0 or 65535 (no measurement) are dropped, and so are depths 
 
 What is reported
 ----------------
-A scene that cannot be fused raises :class:`~shapebench.dataset.ObjectLoadError` with one line
+A scene that cannot be fused raises :class:`~shapebench.api.dataset.ObjectLoadError` with one line
 ``scene <id>: <reason>; <fix>``. A scene that is fused but short of what was asked gets a
 :class:`RGBDWarning` each time it is loaded (also from the cache): fewer frames fused than
 ``frame_stride`` asks of the frames the sequence names (frames without a depth file or a pose,
@@ -45,7 +45,7 @@ reported), a ``frame_stride`` that keeps one frame of several, a fused cloud sma
 beyond ``max_depth`` (a wrong ``depth_scale``). The counts are in the cached arrays and in
 ``ObjectData.extra`` (see :data:`STAT_KEYS`).
 
-Arrays are cached like :class:`shapebench.dataset.MeshDataset` caches them: one atomically
+Arrays are cached like :class:`shapebench.api.dataset.MeshDataset` caches them: one atomically
 written ``.npz`` per scene under ``<cache_dir>/icl-nuim/<fingerprint>/objects/``, and a failed
 scene's reason next to it, so a preparation resumes and a broken scene is not retried.
 """
@@ -60,10 +60,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from shapebench.dataset import Dataset, ObjectLoadError, save_npz_atomic
-from shapebench.errors import ConfigError, DataNotFoundError
+from shapebench.api.dataset import Dataset, ObjectLoadError, save_npz_atomic
+from shapebench.api.errors import ConfigError, DataNotFoundError
+from shapebench.api.types import Category, ObjectData, ObjectRef, Supervision
 from shapebench.hashing import stable_hash, stable_seed
-from shapebench.types import Category, ObjectData, ObjectRef, Supervision
 from shapebench_iclnuim import fusion
 from shapebench_iclnuim.sequence import (
     AUTO,

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from shapebench.dataset import ObjectLoadError
+from shapebench.api.dataset import ObjectLoadError
 
 _VOXEL_OFFSET = 1 << 20  # voxel indices in [-2^20, 2^20) on each axis, 21 bits each
 _COMPACT_EVERY = 4_000_000  # merge the per-frame voxels once this many points have accumulated

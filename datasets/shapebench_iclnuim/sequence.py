@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from shapebench.dataset import ObjectLoadError
+from shapebench.api.dataset import ObjectLoadError
 
 AUTO, TUM, REDWOOD = "auto", "tum", "redwood"
 LAYOUTS = (AUTO, TUM, REDWOOD)

@@ -4,7 +4,7 @@ A quick way to benchmark on one's own shapes: point ``--data-root`` at a folder 
 ``.obj/.off/.ply/.stl/.glb`` files. Each top-level sub-folder is a category (files directly in the
 folder form the category ``misc``), an object's id is its path relative to the folder without the
 extension. Objects are preprocessed like ShapeNet (the paper's §4.1) by
-:class:`shapebench.dataset.MeshDataset` and cached.
+:class:`shapebench.api.dataset.MeshDataset` and cached.
 
 By default there is nothing to train on: every category is *novel* and every object is a test
 object of the ``novel`` split. With ``train_fraction`` > 0 the categories become *trained* and
@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
-from shapebench.dataset import MeshDataset, MeshOptions, ObjectLoadError
-from shapebench.errors import ConfigError, DataNotFoundError
+from shapebench.api.dataset import MeshDataset, MeshOptions, ObjectLoadError
+from shapebench.api.errors import ConfigError, DataNotFoundError
+from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench.hashing import stable_hash
-from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench_meshes.loading import MESH_SUFFIXES, load_mesh_file
 from shapebench_meshes.selection import split_ids
 

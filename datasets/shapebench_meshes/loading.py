@@ -4,7 +4,7 @@ Real files are messy: OBJ files split into one geometry per material (ShapeNet's
 dozens, some of them empty), GLB files are scenes with transforms, PLY files may be point clouds,
 and a truncated download parses into nothing at all. This module turns all of that into either a
 single :class:`trimesh.Trimesh` in the file's frame or an :class:`ObjectLoadError` that names the
-file and the reason, which :class:`shapebench.dataset.MeshDataset` records as that object's
+file and the reason, which :class:`shapebench.api.dataset.MeshDataset` records as that object's
 failure while the other objects go on.
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from shapebench.dataset import ObjectLoadError
+from shapebench.api.dataset import ObjectLoadError
 
 #: File suffixes trimesh reads as triangle meshes (lower case, with the dot).
 MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb")

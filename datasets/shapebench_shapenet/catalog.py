@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 
-from shapebench.errors import ConfigError
+from shapebench.api.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,10 @@ from typing import ClassVar
 from shapebench_meshes.loading import load_mesh_file
 from shapebench_meshes.selection import hash_order, split_ids
 
-from shapebench.dataset import MeshDataset, MeshOptions, ObjectLoadError
-from shapebench.errors import ConfigError
+from shapebench.api.dataset import MeshDataset, MeshOptions, ObjectLoadError
+from shapebench.api.errors import ConfigError
+from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench.hashing import stable_hash
-from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench_shapenet import catalog, layout
 from shapebench_shapenet.splits import read_split_dir
 

@@ -11,7 +11,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from shapebench.errors import DataNotFoundError
+from shapebench.api.errors import DataNotFoundError
 from shapebench_shapenet.catalog import ShapeNetCategory, catalog
 
 V1_FILE = "model.obj"

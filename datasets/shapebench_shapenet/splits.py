@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from shapebench.errors import ConfigError
+from shapebench.api.errors import ConfigError
 
 SPLIT_NAMES = ("train", "test")
 

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from importlib.metadata import version
 from typing import ClassVar
 
-from shapebench.dataset import MeshDataset, MeshOptions
+from shapebench.api.dataset import MeshDataset, MeshOptions
+from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench.hashing import stable_seed
-from shapebench.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench_synthetic import shapes
 
 

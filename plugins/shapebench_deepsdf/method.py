@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from shapebench.api.options import completion_option, option
+from shapebench.api.types import Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
 from shapebench.implicit.options import (
     largest_component_option,
@@ -30,8 +32,6 @@ from shapebench.implicit.options import (
     recipe_option,
 )
 from shapebench.implicit.recipes import with_shared
-from shapebench.options import completion_option, option
-from shapebench.types import Context, Supervision
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from torch import nn
 from shapebench.implicit.losses import clamped_l1
 from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import DeepSDFDecoder
-from shapebench.lightning_fit import adam_halving
+from shapebench.train.lightning_fit import adam_halving
 from shapebench_deepsdf.method import DeepSDFOptions
 
 

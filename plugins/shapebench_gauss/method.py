@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from shapebench.method import Method
-from shapebench.types import Completion, Context
+from shapebench.api.method import Method
+from shapebench.api.types import Completion, Context
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from shapebench.errors import ConfigError
+from shapebench.api.errors import ConfigError
+from shapebench.api.options import completion_option, option
+from shapebench.api.types import Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
 from shapebench.implicit.options import (
     IGRDecoderOptions,
@@ -30,8 +32,6 @@ from shapebench.implicit.options import (
     opt_steps_option,
 )
 from shapebench.implicit.recipes import IGR_TRAINING, with_shared
-from shapebench.options import completion_option, option
-from shapebench.types import Context, Supervision
 
 
 @dataclass(frozen=True)

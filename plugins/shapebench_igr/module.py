@@ -10,7 +10,7 @@ from torch import nn
 from shapebench.implicit.losses import eikonal, gradient, normal_term, offsurface_samples
 from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import IGRDecoder
-from shapebench.lightning_fit import adam_halving
+from shapebench.train.lightning_fit import adam_halving
 from shapebench_igr.method import IGROptions
 
 

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from shapebench.api.options import completion_option, option
+from shapebench.api.types import Completion, Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
 from shapebench.implicit.options import (
     IGRDecoderOptions,
@@ -36,8 +38,6 @@ from shapebench.implicit.options import (
     opt_steps_option,
 )
 from shapebench.implicit.recipes import IGR_TRAINING, with_shared
-from shapebench.options import completion_option, option
-from shapebench.types import Completion, Context, Supervision
 
 
 @dataclass(frozen=True)

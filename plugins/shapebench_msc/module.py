@@ -17,7 +17,7 @@ from shapebench.implicit.losses import (
 )
 from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import IGRDecoder, MSCEncoder
-from shapebench.lightning_fit import adam_halving, step_generator
+from shapebench.train.lightning_fit import adam_halving, step_generator
 from shapebench_msc.method import MSCOptions
 
 

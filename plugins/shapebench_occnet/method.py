@@ -26,12 +26,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shapebench.errors import ConfigError
+from shapebench.api.errors import ConfigError
+from shapebench.api.options import completion_option, option
+from shapebench.api.types import Supervision
 from shapebench.implicit.method_base import ImplicitMethod
 from shapebench.implicit.options import largest_component_option, recipe_option
 from shapebench.implicit.recipes import with_shared
-from shapebench.options import completion_option, option
-from shapebench.types import Supervision
 
 QUERY_SOURCES = ("paper", "uniform")
 

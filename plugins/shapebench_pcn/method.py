@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shapebench.api.options import option
+from shapebench.api.types import Completion, Context, Supervision
 from shapebench.implicit.method_base import LightningMethod
-from shapebench.options import option
-from shapebench.types import Completion, Context, Supervision
 
 
 @dataclass(frozen=True)

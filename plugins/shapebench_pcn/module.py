@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from shapebench.implicit.module_base import OptionsModule
-from shapebench.lightning_fit import step_generator
+from shapebench.train.lightning_fit import step_generator
 from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
 from shapebench_pcn.method import PCNOptions
 from shapebench_pcn.network import PCNNetwork

@@ -10,8 +10,8 @@ import torch
 import trimesh
 from torch import nn
 
+from shapebench.api.types import Completion, Context
 from shapebench.geometry.meshing import extract_mesh, sample_mesh_points
-from shapebench.types import Completion, Context
 
 
 def stack_contexts(
@@ -20,7 +20,7 @@ def stack_contexts(
     """(B, k, 3) points, and normals or None; contexts of one cell all have the same size k.
 
     The benchmark's protocol gives methods points only, so normals are None unless every context
-    carries them (``--context-normals``, see :mod:`shapebench.protocol`).
+    carries them (``--context-normals``, see :mod:`shapebench.api.protocol`).
     """
     pts = torch.from_numpy(np.stack([c.points for c in contexts])).to(device)
     normals = [getattr(c, "normals", None) for c in contexts]

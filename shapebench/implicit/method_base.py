@@ -15,14 +15,14 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from shapebench.method import Method, TrainingContext
-from shapebench.types import Completion, Context, Supervision
+from shapebench.api.method import Method, TrainingContext
+from shapebench.api.types import Completion, Context, Supervision
 
 if TYPE_CHECKING:  # annotations only: the method classes are imported by `shapebench methods`,
-    import numpy as np  # which must not pay for torch (the lazy-torch rule of shapebench.method)
+    import numpy as np  # which must not pay for torch (shapebench.api.method's lazy-torch rule)
     import torch
 
-    from shapebench.lightning_fit import ShapeDataModule
+    from shapebench.train.lightning_fit import ShapeDataModule
 
 
 class LightningMethod(Method):
@@ -43,7 +43,7 @@ class LightningMethod(Method):
     #: :func:`shapebench.implicit.recipes.apply_recipe`); None: the options have no recipe.
     recipes: ClassVar[dict[str, dict[str, Any]] | None] = None
     #: The shared training loop changes trained weights: its source is part of the keys.
-    code_modules: ClassVar[tuple[str, ...]] = ("shapebench.lightning_fit",)
+    code_modules: ClassVar[tuple[str, ...]] = ("shapebench.train.lightning_fit",)
 
     def __init__(self, options: Any | None = None) -> None:
         super().__init__(options)
@@ -85,7 +85,7 @@ class LightningMethod(Method):
     def data_module(self, ctx: TrainingContext) -> ShapeDataModule:
         """The training split as batches of ``batch_shapes`` objects holding
         :meth:`sample_sizes` samples, every draw seeded from the trainer seed."""
-        from shapebench.lightning_fit import ShapeDataModule
+        from shapebench.train.lightning_fit import ShapeDataModule
 
         return ShapeDataModule(ctx.dataset, self.needs(), self.sample_sizes(),
                                self.options.batch_shapes, seed=ctx.trainer.seed,
@@ -97,7 +97,7 @@ class LightningMethod(Method):
         return self.Module(self.options, n_shapes)
 
     def fit(self, ctx: TrainingContext) -> Path:
-        from shapebench.lightning_fit import fit_lightning, seed_training
+        from shapebench.train.lightning_fit import fit_lightning, seed_training
 
         data = self.data_module(ctx)
         n_shapes = data.load_objects()
@@ -107,9 +107,9 @@ class LightningMethod(Method):
     def load_checkpoint(self, path: Path) -> None:
         """Load ``Module`` from ``path``; the file may come from the user (``--checkpoint``), so
         it is read with ``weights_only=True`` after a checksum test: a damaged file or a pickled
-        payload raises a :class:`~shapebench.errors.ShapebenchError` naming it."""
-        from shapebench.checkpoints import load_module
-        from shapebench.lightning_fit import device
+        payload raises a :class:`~shapebench.api.errors.ShapebenchError` naming it."""
+        from shapebench.train.checkpoints import load_module
+        from shapebench.train.lightning_fit import device
 
         self.device = device()
         self.module = load_module(self.Module, Path(path), self.device)

@@ -18,7 +18,8 @@ class OptionsModule(pl.LightningModule):
 
     The hyper-parameters it saves are the options as a flat dict of plain values plus
     ``n_shapes``, so that a checkpoint loads with ``torch.load(weights_only=True)``
-    (:func:`shapebench.checkpoints.load_module`) and Lightning's ``load_from_checkpoint``; both
+    (:func:`shapebench.train.checkpoints.load_module`) and Lightning's ``load_from_checkpoint``;
+    both
     call ``Module(**hyper_parameters)``, from which the dataclass is rebuilt. Keys that are not
     options are ignored (a checkpoint written before a module took its options has hyper-
     parameters named as the options, and a few others).

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from shapebench.options import completion_option, option
+from shapebench.api.options import completion_option, option
 
 
 def recipe_option(

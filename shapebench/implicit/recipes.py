@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from shapebench.errors import ConfigError
+from shapebench.api.errors import ConfigError
 
 RECIPE_NAMES = ("paper", "official")
 

@@ -21,9 +21,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from shapebench.api.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
+from shapebench.api.types import Completion, Context, ObjectData
 from shapebench.geometry.nearest import as_numpy, kdtree, nearest_distances
-from shapebench.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
-from shapebench.types import Completion, Context, ObjectData
 
 
 def gt_to_pred(prediction: Completion, ground_truth: ObjectData) -> np.ndarray:

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from shapebench.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
+from shapebench.api.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
+from shapebench.api.types import Completion, Context, ObjectData
 from shapebench.metrics.chamfer import gt_to_pred, pred_to_gt
-from shapebench.types import Completion, Context, ObjectData
 
 
 class FScore(Metric):

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from shapebench.method import Method, TrainingContext
-from shapebench.types import TRAIN, Completion, Context, Supervision
+from shapebench.api.method import Method, TrainingContext
+from shapebench.api.types import TRAIN, Completion, Context, Supervision
 
 
 def sphere_points(center: np.ndarray, radius: float, n: int, seed: int) -> np.ndarray:

@@ -1,0 +1,128 @@
+"""What a leaderboard row costs: training (wall time, device, device-hours, epochs, final loss)
+and evaluation (seconds per object at test time).
+
+Training costs are read from the MLflow training run each cell names (tag ``training_run_id``),
+where :func:`shapebench.train.lightning_fit.report_summary` logged them (``summary/*`` metrics, tag
+``training_device``); evaluation seconds from the per-object tables (column ``seconds``: the
+wall time of the method's ``complete_batch`` call divided by the objects in it).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+#: Columns :func:`row_costs` returns, besides ``variant``.
+COST_COLUMNS = [
+    "seconds_per_object", "train_device_hours", "train_wall_seconds", "train_device",
+    "train_epochs", "train_final_loss", "train_weights", "trainings",
+]  # fmt: skip
+#: The tag of a training run whose weights are a shipped reference checkpoint.
+REFERENCE_TAG = "shapebench.reference"
+
+
+def device_count(device: str) -> int:
+    """Devices of a ``training_device`` tag (``cpu x1``, ``cuda x4 (NVIDIA H100)``); 1 if none."""
+    match = re.search(r"\bx(\d+)", device or "")
+    return int(match.group(1)) if match else 1
+
+
+def device_hours(wall_seconds: float, devices: int) -> float:
+    """Devices held times wall time, in hours: what a cluster bills."""
+    return float(wall_seconds) * max(int(devices), 1) / 3600.0
+
+
+@dataclass
+class TrainingCost:
+    """One training run's cost, as logged at its end."""
+
+    run_id: str
+    wall_seconds: float = math.nan
+    device: str = ""
+    device_hours: float = math.nan
+    epochs: float = math.nan
+    final_loss: float = math.nan
+    #: "reference" (shipped weights, see shapebench.train.references) or "local".
+    weights: str = "local"
+
+    @classmethod
+    def from_run(cls, run: Any) -> TrainingCost:
+        metrics, tags = run.data.metrics, run.data.tags
+        device = tags.get("training_device", "")
+        wall = float(metrics.get("summary/wall_seconds", math.nan))
+        # Trainings logged before device-hours were recorded: derive them from the device tag.
+        hours = metrics.get("summary/device_hours", device_hours(wall, device_count(device)))
+        return cls(run.info.run_id, wall, device, float(hours),
+                   float(metrics.get("summary/epochs", math.nan)),
+                   float(metrics.get("summary/final_loss", math.nan)),
+                   "reference" if tags.get(REFERENCE_TAG) else "local")  # fmt: skip
+
+
+def training_costs(client: Any, run_ids: list[str]) -> dict[str, TrainingCost]:
+    """The cost of each training run that still exists (a deleted one is left out)."""
+    out: dict[str, TrainingCost] = {}
+    for run_id in sorted({r for r in run_ids if r}):
+        try:
+            out[run_id] = TrainingCost.from_run(client.get_run(run_id))
+        except Exception:  # deleted or in another store (merged cells): no cost to show
+            continue
+    return out
+
+
+def row_costs(client: Any, runs: pd.DataFrame, per_object: pd.DataFrame) -> pd.DataFrame:
+    """Per variant: test-time seconds per successfully completed object (over all its cells),
+    and the mean cost of its trainings (one per seed; NaN for methods that do not train)."""
+    ok = per_object[per_object["status"] == "ok"]
+    seconds = (ok.groupby("variant")["seconds"].mean() if "seconds" in ok
+               else pd.Series(dtype=float))  # fmt: skip
+    ids = runs.get("training_run_id", pd.Series("", index=runs.index)).fillna("")
+    costs = training_costs(client, ids.tolist())
+    rows = []
+    for variant, g in runs.assign(_tr=ids).groupby("variant.key"):
+        trained = [costs[r] for r in sorted(set(g["_tr"])) if r in costs]
+        row: dict[str, Any] = {"variant": variant,
+                               "seconds_per_object": float(seconds.get(variant, math.nan)),
+                               "trainings": len(trained)}  # fmt: skip
+        if trained:
+            table = pd.DataFrame([asdict(c) for c in trained])
+            row.update(train_device_hours=float(table["device_hours"].mean()),
+                       train_wall_seconds=float(table["wall_seconds"].mean()),
+                       train_device=", ".join(sorted(set(table["device"]) - {""})),
+                       train_epochs=float(table["epochs"].mean()),
+                       train_final_loss=float(table["final_loss"].mean()),
+                       train_weights=", ".join(sorted(set(table["weights"]))))  # fmt: skip
+        rows.append(row)
+    out = pd.DataFrame(rows, columns=["variant", *COST_COLUMNS])
+    for column in ("train_device", "train_weights"):
+        out[column] = out[column].astype(object).fillna("")
+    return out
+
+
+def describe_training(cost: pd.Series | dict, hours: bool = True) -> str:
+    """``0.05 device-h (181 s on cpu x1), 100 epochs, loss 0.0216`` (without the device-hours
+    when ``hours`` is false; ``, reference weights`` when the weights were shipped), or ``–``
+    when it did not train (or its training run is gone)."""
+    dh = cost.get("train_device_hours", math.nan)
+    if dh is None or not np.isfinite(dh):
+        return "–"
+    where = f"{cost['train_wall_seconds']:.0f} s on {cost['train_device']}"
+    text = f"{dh:.3g} device-h ({where})" if hours else where
+    if np.isfinite(cost.get("train_epochs", math.nan)):
+        text += f", {cost['train_epochs']:.0f} epochs"
+    if np.isfinite(cost.get("train_final_loss", math.nan)):
+        text += f", loss {cost['train_final_loss']:.3g}"
+    if "reference" in str(cost.get("train_weights") or ""):
+        text += f", {cost['train_weights']} weights"
+    return text
+
+
+def describe_seconds(seconds: float) -> str:
+    """Seconds per object, readable from milliseconds to minutes."""
+    if seconds is None or not np.isfinite(seconds):
+        return "–"
+    return f"{seconds * 1000:.1f} ms" if seconds < 1 else f"{seconds:.2f} s"

@@ -1,0 +1,501 @@
+"""``shapebench report``: one self-contained HTML page per dataset, built from the MLflow runs.
+
+Per split (one leaderboard each, :func:`shapebench.boards.leaderboard.build_board`): who wins at
+each
+context size and which rows are statistically tied with the winner, the raw and normalised
+tables (sortable: click a header), the cost of each row, the metric card, the figures of
+:mod:`shapebench.boards.figures` (inline SVG), the qualitative grids of
+:mod:`shapebench.evaluate.pictures`
+(rows = methods, columns = context sizes, drawn from the pictures the cells logged) and, for
+methods that return posterior samples, the completions coloured by their per-point spread; then
+where the numbers come from (versions, git commits, dataset fingerprints).
+
+The page needs nothing but a browser: images are inline (SVG, PNG data URIs), the sorting is a
+few lines of vanilla JavaScript, and nothing is fetched from the network. It is written beside
+the leaderboards as ``<dataset>-report.html`` and logged to each table's MLflow run.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import importlib.metadata
+import platform
+import shlex
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from shapebench import __version__
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
+from shapebench.boards.leaderboard import Board, Row, board_path, build_board, splits_with_runs
+from shapebench.config import Settings
+from shapebench.store.tracking import Tracker, experiment_name
+
+#: Distributions whose versions the provenance section lists.
+VERSIONS = ["shapebench", "mlflow", "numpy", "scipy", "torch", "pytorch-lightning", "matplotlib"]
+#: Pictured objects drawn as qualitative grids per table, at most.
+GRIDS = 3
+
+
+@dataclass
+class Section:
+    """What the page shows of one table (one split)."""
+
+    board: Board
+    figures: dict[str, str]  # name -> inline SVG
+    grids: list[tuple[str, str]] = field(default_factory=list)  # (object, PNG data URI)
+    spreads: list[tuple[str, str]] = field(default_factory=list)  # (caption, PNG data URI)
+    files: list[Path] = field(default_factory=list)  # written beside the report
+
+
+def report_path(out_dir: Path, dataset: str, frame: str = DEFAULT_FRAME) -> Path:
+    suffix = "" if frame == DEFAULT_FRAME else f"-{frame}"
+    return out_dir / f"{dataset}{suffix}-report.html"
+
+
+def _e(value: object) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def _data_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _svg(fig: Any) -> str:
+    """A matplotlib figure as inline SVG markup (no XML prologue, scales with the page)."""
+    import io
+
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg")
+    text = buf.getvalue()
+    return text[text.index("<svg") :]
+
+
+# -- pictures read back from the cells -------------------------------------------------------
+
+
+def _picture_runs(board: Board) -> pd.DataFrame:
+    """The cell runs the grids are drawn from: per (row, context size), the lowest seed."""
+    runs = board.runs
+    if runs is None or runs.empty:
+        return pd.DataFrame(columns=["run_id", "variant.key", "context_size", "seed"])
+    return runs.sort_values("seed").drop_duplicates(["variant.key", "context_size"])
+
+
+class Artifacts:
+    """Reads a run's artifacts: straight from the folder when the store is local (the embedded
+    workspace), else downloaded; MLflow's download costs ~80 ms a file even for local files."""
+
+    def __init__(self, client: Any, run_id: str, dst: Path) -> None:
+        from urllib.parse import urlparse
+        from urllib.request import url2pathname
+
+        self.client, self.run_id, self.dst = client, run_id, dst
+        uri = client.get_run(run_id).info.artifact_uri
+        parsed = urlparse(uri)
+        self.local = (Path(url2pathname(parsed.path)) if parsed.scheme in ("", "file")
+                      else None)  # fmt: skip
+
+    def path(self, name: str) -> Path:
+        if self.local is not None and (self.local / name).exists():
+            return self.local / name
+        return Path(self.client.download_artifacts(self.run_id, name, str(self.dst)))
+
+    def names(self, folder: str) -> list[str]:
+        if self.local is not None and (self.local / folder).is_dir():
+            return sorted(f"{folder}/{p.name}" for p in (self.local / folder).iterdir())
+        return [a.path for a in self.client.list_artifacts(self.run_id, folder)]
+
+
+def _cell_pictures(client: Any, run_id: str, dst: Path) -> dict[str, dict[str, np.ndarray]]:
+    """Object id stem -> arrays of the pictures a cell logged (``pictures/*.npz``); for cells
+    logged before pictures existed, the completed ``.ply`` clouds and their contexts."""
+    out: dict[str, dict[str, np.ndarray]] = {}
+    store = Artifacts(client, run_id, dst)
+    if store.names("pictures"):
+        folder = store.path("pictures")
+        for npz in sorted(folder.glob("*.npz")):
+            with np.load(npz) as arrays:
+                out[npz.stem] = {k: arrays[k] for k in arrays.files}
+        return out
+    plys = [p for p in store.names("completions") if p.endswith(".ply") and ".sample" not in p]
+    if not plys:
+        return out
+    import trimesh
+
+    contexts: dict[str, np.ndarray] = {}
+    try:
+        with np.load(store.path("contexts.npz")) as c:
+            contexts = {str(o).replace("/", "__"): p for o, p in zip(c["objects"], c["points"],
+                                                                     strict=True)}  # fmt: skip
+    except Exception:  # no contexts logged: the grid shows completions only
+        pass
+    for path in plys:
+        stem = Path(path).stem
+        cloud = trimesh.load(store.path(path))
+        out[stem] = {"completion": np.asarray(cloud.vertices, np.float32),
+                     "context": contexts.get(stem, np.zeros((0, 3), np.float32))}  # fmt: skip
+    return out
+
+
+def _grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
+    """The qualitative grids (one per pictured object, up to ``GRIDS``) and the posterior
+    spread pictures of the board's cells."""
+    from shapebench.evaluate.pictures import png_bytes, qualitative_grid
+
+    labels = {r.variant: r.label for r in board.rows}
+    cells: dict[tuple[str, int], dict[str, dict[str, np.ndarray]]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, run in enumerate(_picture_runs(board).to_dict("records")):
+            dst = Path(tmp) / str(i)
+            dst.mkdir()
+            key = (labels.get(run["variant.key"], run["_label"]), int(run["context_size"]))
+            cells[key] = _cell_pictures(tracker.client, run["run_id"], dst)
+    objects: dict[str, int] = {}
+    for pictures in cells.values():
+        for stem in pictures:
+            objects[stem] = objects.get(stem, 0) + 1
+    # The objects most cells pictured (every cell pictures the same ones; older stores differ).
+    chosen = sorted(objects, key=lambda s: (-objects[s], s))[:GRIDS]
+    grids, spreads = [], []
+    for stem in chosen:
+        completions = {k: p[stem]["completion"] for k, p in cells.items() if stem in p}
+        context_points = {k[1]: p[stem]["context"] for k, p in cells.items()
+                          if stem in p and len(p[stem]["context"])}  # fmt: skip
+        truth = next((p[stem]["ground_truth"] for p in cells.values()
+                      if stem in p and "ground_truth" in p[stem]), None)  # fmt: skip
+        obj = stem.replace("__", "/")
+        fig = qualitative_grid([r.label for r in board.rows], board.contexts, completions,
+                               context_points, truth,
+                               f"{board.dataset}/{board.split}: {obj}")  # fmt: skip
+        grids.append((obj, _data_uri(png_bytes(fig))))
+        for (label, ctx), p in sorted(cells.items()):
+            if stem in p and "spread" in p[stem]:
+                spreads.append((f"{label}, {ctx} points: {obj}",
+                                _spread_picture(p[stem], f"{label} k={ctx}: {obj}")))  # fmt: skip
+    return grids, spreads
+
+
+def _spread_picture(arrays: dict[str, np.ndarray], title: str) -> str:
+    from shapebench.evaluate.pictures import picture_png
+
+    return _data_uri(picture_png(arrays, title))
+
+
+# -- the page ---------------------------------------------------------------------------------
+
+STYLE = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2rem auto;
+max-width:1400px;padding:0 1rem;color:#222;line-height:1.4}
+h1{font-size:1.6rem}h2{border-bottom:2px solid #ddd;padding-bottom:.2rem;margin-top:2.5rem}
+table{border-collapse:collapse;margin:.8rem 0;font-size:.85rem}
+th,td{border:1px solid #ccc;padding:.25rem .5rem;text-align:right;white-space:nowrap}
+th{background:#f2f2f2;cursor:pointer;user-select:none}
+th[data-dir=asc]::after{content:" \\25B2"}th[data-dir=desc]::after{content:" \\25BC"}
+td:first-child,th:first-child{text-align:left}.wrap{white-space:normal;text-align:left;
+min-width:14rem}.scroll{overflow-x:auto}
+td.best{font-weight:bold;background:#e6f4ea}td.tied{background:#f3f9f4}
+.note{color:#555;font-size:.85rem}.figure svg{max-width:100%;height:auto}
+.pictures img{max-width:100%;border:1px solid #eee;margin:.3rem 0}
+code{background:#f5f5f5;padding:0 .2rem}dl.prov dt{font-weight:bold}
+dl.prov dd{margin:0 0 .4rem 1rem}
+"""
+
+SORT_JS = """
+document.querySelectorAll("table.sortable").forEach(function (table) {
+  table.querySelectorAll("th").forEach(function (th, col) {
+    th.addEventListener("click", function () {
+      var dir = th.dataset.dir === "asc" ? "desc" : "asc";
+      table.querySelectorAll("th").forEach(function (h) { delete h.dataset.dir; });
+      th.dataset.dir = dir;
+      var key = function (row) {
+        var cell = row.cells[col], v = cell.dataset.sort !== undefined ? cell.dataset.sort
+          : cell.textContent.trim(), n = parseFloat(v);
+        return isNaN(n) ? v.toLowerCase() : n;
+      };
+      var body = table.tBodies[0];
+      Array.from(body.rows).sort(function (a, b) {
+        var x = key(a), y = key(b);
+        var c = (typeof x === "number" && typeof y === "number") ? x - y
+          : String(x).localeCompare(String(y));
+        return dir === "asc" ? c : -c;
+      }).forEach(function (row) { body.appendChild(row); });
+    });
+  });
+});
+"""
+
+
+def _num(value: float) -> str:
+    """A sort key: missing values sort last (ascending)."""
+    return "Infinity" if value is None or not np.isfinite(value) else repr(float(value))
+
+
+def _sig(board: Board, row: Row, ctx: int) -> pd.Series | None:
+    s = board.significance
+    hit = s[(s.variant == row.variant) & (s.context == ctx)]
+    return None if hit.empty else hit.iloc[0]
+
+
+def _raw_cell(board: Board, row: Row, ctx: int) -> str:
+    r = board.raw[(board.raw.variant == row.variant) & (board.raw.context == ctx)]
+    if r.empty:
+        return '<td data-sort="Infinity">–</td>'
+    r = r.iloc[0]
+    if r["n_ok"] == 0:
+        return f'<td data-sort="Infinity">failed (0/{int(r["n"])})</td>'
+    text, cls, title = f"{r['mean']:.2f} ± {r['std']:.2f}", "", ""
+    sig = _sig(board, row, ctx)
+    if sig is not None and bool(sig["best"]):
+        cls, title = "best", "best at this context size"
+    elif sig is not None:
+        title = f"p vs best {sig['p_vs_best']:.3g}, Holm {sig['p_holm']:.3g}"
+        if bool(sig["tied"]):
+            cls, text = "tied", text + " ≈"
+    if r["failures"]:
+        text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
+    attrs = f' class="{cls}"' if cls else ""
+    return f'<td data-sort="{_num(r["mean"])}"{attrs} title="{_e(title)}">{_e(text)}</td>'
+
+
+def _norm_cell(board: Board, row: Row, ctx: int) -> str:
+    if row.label == board.reference:
+        return '<td data-sort="1">1</td>'
+    df = board.normalized
+    r = None if df is None or df.empty else df[(df.variant == row.variant) & (df.context == ctx)]
+    if r is None or r.empty or not np.isfinite(r.iloc[0]["mean"]):
+        return '<td data-sort="Infinity">–</td>'
+    m, s = r.iloc[0]["mean"], r.iloc[0]["std"]
+    return f'<td data-sort="{_num(m)}">{m:.2f} ± {s:.2f}</td>'
+
+
+def _cost(board: Board, row: Row) -> dict[str, Any]:
+    if board.costs is None:
+        return {}
+    hit = board.costs[board.costs.variant == row.variant]
+    return {} if hit.empty else hit.iloc[0].to_dict()
+
+
+def _tables(board: Board) -> str:
+    from shapebench.boards.cost import describe_seconds, describe_training
+
+    ctxs = board.contexts
+    head = "".join(f"<th>{c}</th>" for c in ctxs)
+    raw = [f'<table class="sortable" id="raw-{_e(board.split)}"><thead><tr><th>method</th>'
+           f"{head}<th>objects</th><th>failed</th><th>test time / object</th>"
+           "<th>training device-hours</th><th class=\"wrap\">training</th></tr></thead>"
+           "<tbody>"]  # fmt: skip
+    for row in board.rows:
+        r = board.raw[board.raw.variant == row.variant]
+        cost = _cost(board, row)
+        secs = cost.get("seconds_per_object", np.nan)
+        hours = cost.get("train_device_hours", np.nan)
+        raw.append(
+            f'<tr><td title="{_e(row.display)}">{_e(row.label)}</td>'
+            + "".join(_raw_cell(board, row, c) for c in ctxs)
+            + f"<td>{int(r['n'].max())}</td><td>{int(r['failures'].sum())}</td>"
+            + f'<td data-sort="{_num(secs)}">{_e(describe_seconds(secs))}</td>'
+            + f'<td data-sort="{_num(hours)}">'
+            + (f"{hours:.3g}" if np.isfinite(hours) else "–")
+            + f'</td><td class="wrap">{_e(describe_training(cost, False) if cost else "–")}'
+            + "</td></tr>"
+        )
+    raw.append("</tbody></table>")
+    norm = [f'<table class="sortable" id="norm-{_e(board.split)}"><thead><tr><th>method</th>'
+            f"{head}</tr></thead><tbody>"]  # fmt: skip
+    for row in board.rows:
+        norm.append(f"<tr><td>{_e(row.label)}</td>"
+                    + "".join(_norm_cell(board, row, c) for c in ctxs) + "</tr>")  # fmt: skip
+    norm.append("</tbody></table>")
+    return "\n".join(raw), "\n".join(norm)
+
+
+def _winners(board: Board) -> str:
+    """In words, per context size: the best row and the rows tied with it."""
+    from shapebench.boards.leaderboard import _higher_is_better
+
+    labels = {r.variant: r.label for r in board.rows}
+    direction = "highest" if _higher_is_better(board.metric, board.card) else "lowest"
+    items = []
+    for ctx in board.contexts:
+        s = board.significance[board.significance.context == ctx]
+        best = s[s.best]
+        if best.empty:
+            continue
+        tied = [labels.get(v, v) for v in s[s.tied].variant]
+        text = f"<b>{ctx} points</b>: <b>{_e(labels.get(best.iloc[0].variant, ''))}</b>"
+        text += (f" (not significantly better than {_e(', '.join(tied))})" if tied
+                 else " (significantly better than every other row)")  # fmt: skip
+        items.append(f"<li>{text}</li>")
+    return (f"<p>Winner ({direction} mean) per context size, paired Wilcoxon over the same "
+            f"objects, Holm-corrected:</p><ul class=\"winners\">{''.join(items)}</ul>")  # fmt: skip
+
+
+def _provenance(board: Board) -> str:
+    runs = board.runs.copy() if board.runs is not None else pd.DataFrame()
+    if {"plugin.distribution", "plugin.version"} <= set(runs.columns):
+        runs["_plugin"] = (runs["plugin.distribution"].fillna("") + " "
+                           + runs["plugin.version"].fillna("")).str.strip()  # fmt: skip
+
+    def used(col: str) -> str:
+        if col not in runs:
+            return "–"
+        counts = runs[col].fillna("").replace("", "unknown").value_counts()
+        return ", ".join(f"<code>{_e(v)}</code> ({n} runs)" for v, n in counts.items())
+
+    rows = "".join(
+        f"<li><code>{_e(r.label)}</code>: {_e(r.method)}, code <code>{_e(r.code or '–')}</code>"
+        + (f", checkpoint <code>{_e(r.checkpoint[:16])}</code>" if r.checkpoint else "")
+        + "</li>"
+        for r in board.rows
+    )
+    return (
+        '<dl class="prov">'
+        f"<dt>dataset</dt><dd>{_e(board.dataset)} / {_e(board.split)}, fingerprint "
+        f"<code>{_e(board.fingerprint)}</code>"
+        + (f", data root <code>{_e(board.data_root)}</code>" if board.data_root else "")
+        + f"; versions {used('dataset.version')}</dd>"
+        f"<dt>shapebench that computed the runs</dt><dd>{used('shapebench.version')}</dd>"
+        f"<dt>git commits of the runs</dt><dd>{used('git_commit')}</dd>"
+        f"<dt>plugins</dt><dd>{used('_plugin')}</dd>"
+        f"<dt>MLflow experiment</dt><dd><code>{_e(experiment_name(board.dataset, board.split))}"
+        f"</code> (id {_e(board.experiment_id)})</dd>"
+        f"<dt>rows</dt><dd><ul>{rows}</ul></dd></dl>"
+    )
+
+
+def _environment() -> str:
+    from shapebench.store.provenance import git_commit
+
+    versions = []
+    for dist in VERSIONS:
+        try:
+            versions.append(f"{dist} {importlib.metadata.version(dist)}")
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return (f"shapebench {_e(__version__)} at commit <code>{_e(git_commit())}</code>; Python "
+            f"{_e(platform.python_version())} on {_e(platform.platform())}; "
+            f"{_e(', '.join(versions))}")  # fmt: skip
+
+
+def _section(sec: Section) -> str:
+    from shapebench.boards.leaderboard import _card_text
+
+    b = sec.board
+    raw, norm = _tables(b)
+    sid = _e(b.split)
+    parts = [
+        f'<h2 id="split-{sid}">{_e(b.dataset)} / {sid}: {_e(b.metric)}</h2>',
+        _winners(b),
+        f"<p><b>Metric card</b>: {_e(_card_text(b.card))}. <b>Protocol</b>: {_e(b.protocol)}; "
+        f"distances in the {_e(FRAMES[b.frame][1])}.</p>",
+        *(f'<p class="note">Left out: {_e(item)}.</p>' for item in b.left_out),
+        f"<h3>Raw: {_e(b.metric)} x{b.scale:g}, mean ± std over objects</h3>",
+        '<p class="note">Bold: the winner at that context size; ≈ (shaded): not significantly '
+        "different from it; hover a cell for its p-values. Click a header to sort. Failed "
+        "objects score as the worst success of their cell.</p>",
+        f'<div class="scroll">{raw}</div>',
+        f"<h3>Normalised: per object divided by <code>{_e(b.reference)}</code> "
+        "(the paper's eq. 8)</h3>",
+        norm if b.normalized is not None else f'<p class="note">{_e(b.note)}</p>',
+        "<h3>Figures</h3>",
+        *(
+            f'<div class="figure" id="fig-{name}-{sid}">{svg}</div>'
+            for name, svg in sec.figures.items()
+        ),  # fmt: skip
+        "<h3>Completions</h3>",
+    ]
+    if sec.grids:
+        parts.append('<p class="note">Rows: methods; columns: context sizes (first row: the '
+                     "context points every method was given, and the ground truth). The same "
+                     "objects for every method.</p>")  # fmt: skip
+        parts += [f'<div class="pictures"><img alt="qualitative grid {_e(obj)}" src="{uri}">'
+                  "</div>" for obj, uri in sec.grids]  # fmt: skip
+    else:
+        parts.append('<p class="note">No pictures logged by these runs.</p>')
+    if sec.spreads:
+        parts.append("<h3>Posterior uncertainty</h3><p class=\"note\">Completions coloured by "
+                     "the per-point spread over posterior samples (RMS distance to each "
+                     "sample's nearest point): where the method is unsure.</p>")  # fmt: skip
+        parts += [f'<div class="pictures"><img alt="{_e(cap)}" src="{uri}"></div>'
+                  for cap, uri in sec.spreads]  # fmt: skip
+    parts += ["<h3>Provenance</h3>", _provenance(b)]
+    return "\n".join(parts)
+
+
+def render_html(sections: list[Section], dataset: str, command: str, uri: str) -> str:
+    toc = " · ".join(f'<a href="#split-{_e(s.board.split)}">{_e(s.board.split)}</a>'
+                     for s in sections)  # fmt: skip
+    body = "\n".join(_section(s) for s in sections)
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>shapebench report: {_e(dataset)}</title><style>{STYLE}</style></head>
+<body>
+<h1>shapebench report: {_e(dataset)}</h1>
+<p class="note">Generated {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC} by <code>{_e(command)}
+</code> from <code>{_e(uri)}</code>. Splits: {toc}.</p>
+{body}
+<h2>Environment of this report</h2><p class="note">{_environment()}</p>
+<script>{SORT_JS}</script>
+</body></html>
+"""
+
+
+def build_report(
+    settings: Settings,
+    dataset: str,
+    splits: list[str] | None,
+    reference: str,
+    metric: str | None,
+    out_dir: Path,
+    frame: str = DEFAULT_FRAME,
+    data_version: str | None = None,
+    all_variants: bool = False,
+) -> tuple[Path, float]:
+    """Write ``<out_dir>/<dataset>-report.html`` (and each table's figures beside it), log it to
+    the tables' MLflow runs; return the page and the seconds it took."""
+    from shapebench.boards.figures import board_figures, log_board_artifacts, save
+
+    start = time.perf_counter()
+    tracker = Tracker(settings)
+    if splits is None:
+        splits = splits_with_runs(tracker, dataset)
+    sections = []
+    for split in splits:
+        board = build_board(tracker, dataset, split, reference, metric, frame, data_version,
+                            all_variants)  # fmt: skip
+        if board is None:
+            continue
+        md = board_path(out_dir, dataset, split, frame)
+        figures, files = {}, []
+        for name, fig in board_figures(board).items():
+            files += save(fig, md.with_name(f"{md.stem}-{name}"))
+            figures[name] = _svg(fig)
+        grids, spreads = _grids_and_spreads(tracker, board)
+        for obj, uri in grids:  # the grids as files too, beside the figures
+            path = md.with_name(f"{md.stem}-grid-{obj.replace('/', '__')}.png")
+            path.write_bytes(base64.b64decode(uri.split(",", 1)[1]))
+            files.append(path)
+        sections.append(Section(board, figures, grids, spreads, files))
+    if not sections:
+        raise ShapebenchError(
+            f"no finished runs of dataset {dataset!r} in the {frame} frame in "
+            f"{settings.tracking_uri}",
+            f"run one first: shapebench run --method gauss --dataset {dataset}",
+        )
+    command = "shapebench " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    page = report_path(out_dir, dataset, frame)
+    page.write_text(render_html(sections, dataset, command, settings.tracking_uri))
+    for sec in sections:
+        log_board_artifacts(tracker, sec.board, [page, *sec.files])
+    return page, time.perf_counter() - start

@@ -1,0 +1,284 @@
+"""``shapebench run``: resolve names, train if needed, run the cells, collect the outcome."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shapebench.api.dataset import Dataset
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.method import Method, TrainerOptions
+from shapebench.api.protocol import Protocol
+from shapebench.api.types import TRAIN
+from shapebench.config import Settings
+from shapebench.evaluate.runner import CellResult, Runner, RunPlan, validate_contexts
+from shapebench.registry.discovery import get_registry
+from shapebench.registry.resolve import (
+    ResolvedMethod,
+    resolve_dataset,
+    resolve_method,
+    resolve_metrics,
+)
+from shapebench.registry.variant import Variant, make_variant
+from shapebench.store.tracking import Tracker
+from shapebench.train.training import (
+    apply_trainer,
+    checkpoint_key,
+    ensure_checkpoint,
+    find_reference,
+    profile_trainer,
+    training_identity,
+    weights_origin,
+)
+
+
+@dataclass
+class EvalRequest:
+    method: str
+    dataset: str
+    splits: list[str] | None = None
+    contexts: list[int] = field(default_factory=lambda: [50, 100, 300, 1000])
+    seeds: list[int] = field(default_factory=lambda: [0])
+    method_opts: dict[str, Any] = field(default_factory=dict)
+    dataset_opts: dict[str, Any] = field(default_factory=dict)
+    data_root: str | None = None
+    metrics: list[str] | None = None
+    checkpoint: str | None = None
+    force: bool = False
+    quiet: bool = False
+    protocol: Protocol = field(default_factory=Protocol)
+    label: str | None = None
+    #: Train locally even when a reference checkpoint of the key is shipped.
+    retrain: bool = False
+
+
+@dataclass
+class EvalOutcome:
+    method: ResolvedMethod
+    dataset: Dataset
+    primary_metric: str
+    cells: list[CellResult]
+    variant: Variant | None = None
+    #: Wall seconds of this outcome spent getting weights (training, or installing a shipped
+    #: checkpoint) rather than evaluating: progress estimates leave them out.
+    train_seconds: float = 0.0
+
+    @property
+    def all_failed_cells(self) -> list[CellResult]:
+        """Cells in which no object could be scored: the run must not look successful."""
+        return [c for c in self.cells if c.n_objects and c.n_ok == 0]
+
+
+def _check_splits(dataset: Dataset, splits: list[str] | None) -> list[str]:
+    if not splits:
+        return list(dataset.eval_splits)
+    unknown = [s for s in splits if s not in dataset.eval_splits]
+    if unknown:
+        raise ShapebenchError(
+            f"dataset {dataset.name!r} has no evaluation split {', '.join(unknown)}",
+            f"use one of: {', '.join(dataset.eval_splits)}",
+        )
+    empty = [s for s in splits if not dataset.objects(s)]
+    if empty:  # asked for by name: an empty split is a mistake, not something to skip quietly
+        notes = "; ".join(n for s in empty for n in dataset.selection_notes(s))
+        raise ShapebenchError(
+            f"split {', '.join(empty)} of dataset {dataset.name!r} has no objects"
+            + (f" ({notes})" if notes else ""),
+            "check the dataset options that select objects (shapebench datasets lists them)",
+        )
+    return splits
+
+
+def _given_checkpoint_key(path: str) -> str:
+    st = os.stat(path)
+    return f"{Path(path).resolve()}:{st.st_size}:{int(st.st_mtime)}"
+
+
+@dataclass
+class Resolved:
+    """A request with its names resolved and checked: what every seed of it evaluates."""
+
+    method: ResolvedMethod
+    dataset: Dataset
+    splits: list[str]
+    contexts: list[int]
+    metrics: list[Any]
+    primary: str
+
+
+@dataclass
+class SeedPlan:
+    """One seed of a request: its trainer settings, method (with ``--max-epochs`` applied), the
+    cells' plan and the checkpoint it needs (``checkpoint["key"]`` for trainable methods)."""
+
+    seed: int
+    trainer: TrainerOptions
+    method: ResolvedMethod
+    plan: RunPlan
+    checkpoint: dict[str, Any]
+    variant: Variant
+
+
+def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
+    """Resolve and check the names and sizes of ``req``, before any work."""
+    registry = get_registry()
+    method = resolve_method(registry, req.method, settings, req.method_opts)
+    dataset = resolve_dataset(registry, req.dataset, settings, req.data_root, req.dataset_opts)
+    splits = _check_splits(dataset, req.splits)
+    contexts = validate_contexts(req.contexts)
+    bound = dataset.max_context_size()
+    if bound is not None and max(contexts) > bound:
+        raise ShapebenchError(
+            f"context size {max(contexts)} is larger than the {bound} surface points that dataset "
+            f"{dataset.name!r} samples per object",
+            "use smaller context sizes, or sample more surface points (-D surface_candidates=...)",
+        )
+    metrics = resolve_metrics(registry, req.metrics)
+    primary = (
+        dataset.default_metric
+        if any(m.name == dataset.default_metric for m in metrics)
+        else metrics[0].name
+    )
+    if method.cls.trains and not req.checkpoint and not dataset.objects(TRAIN):
+        raise ShapebenchError(
+            f"method {method.name!r} needs training, and dataset {dataset.name!r} has no "
+            "training objects",
+            f"train on a dataset that has some (e.g. shapebench train -m {method.name} -d "
+            "synthetic) and pass the checkpoint with --checkpoint PATH",
+        )
+    return Resolved(method, dataset, splits, contexts, metrics, primary)
+
+
+def seed_plans(
+    req: EvalRequest,
+    resolved: Resolved,
+    settings: Settings,
+    trainer_for_seed: Callable[[int], TrainerOptions],
+) -> list[SeedPlan]:
+    """The plan of each seed of ``req``: what :func:`evaluate` runs, and what a cluster launcher
+    looks at to decide which cells and trainings are missing (:mod:`shapebench.sweeps.plan`)."""
+    method, dataset = resolved.method, resolved.dataset
+    out = []
+    for seed in req.seeds:
+        trainer = trainer_for_seed(seed)
+        seed_method = apply_trainer(method, trainer) if method.cls.trains else method
+        checkpoint: dict[str, Any] = {}
+        training = None
+        origin = None  # of the weights: see shapebench.train.references
+        if method.cls.trains:
+            if req.checkpoint:
+                checkpoint["key"] = _given_checkpoint_key(req.checkpoint)
+            else:
+                checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
+                training = training_identity(seed_method, trainer)
+                checkpoint["training"] = training
+                reference = find_reference(seed_method, checkpoint["key"])
+                origin = weights_origin(settings, seed_method, checkpoint["key"], req.retrain,
+                                        reference)  # fmt: skip
+                if origin:  # shipped weights are not those a local training would give
+                    checkpoint["weights"] = origin
+                elif reference is not None:
+                    origin = "local"  # a row beside the reference's: its label says so
+        variant = _variant(seed_method, dataset, req, settings, trainer, training, origin)
+        plan = RunPlan(
+            seed_method, dataset, resolved.splits, resolved.contexts, [seed], resolved.metrics,
+            req.force, req.quiet, checkpoint, req.protocol, variant,
+        )  # fmt: skip
+        out.append(SeedPlan(seed, trainer, seed_method, plan, checkpoint, variant))
+    return out
+
+
+def evaluate(
+    req: EvalRequest,
+    settings: Settings,
+    trainer_for_seed: Callable[[int], TrainerOptions],
+    tracker: Tracker | None = None,
+) -> EvalOutcome:
+    resolved = resolve_request(req, settings)
+    tracker = tracker or Tracker(settings)  # an unreachable server fails here, before any work
+    runner = Runner(tracker)
+    cells: list[CellResult] = []
+    variant = None
+    weights_seconds: list[float] = []
+    for sp in seed_plans(req, resolved, settings, trainer_for_seed):
+        variant = sp.variant
+        make = _method_factory(sp.method, resolved.dataset, req, settings, sp.trainer,
+                               sp.checkpoint, weights_seconds)  # fmt: skip
+        cells += runner.run(sp.plan, make)
+    return EvalOutcome(resolved.method, resolved.dataset, resolved.primary, cells, variant,
+                       sum(weights_seconds))  # fmt: skip
+
+
+def _variant(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    req: EvalRequest,
+    settings: Settings,
+    trainer: TrainerOptions,
+    training: dict[str, Any] | None,
+    weights: str | None = None,
+) -> Variant:
+    """The leaderboard row of this run (see :mod:`shapebench.registry.variant`)."""
+    training_overrides: dict[str, Any] = {}
+    if training is not None:
+        training = {k: v for k, v in training.items() if k != "seed"}
+        base = training_identity(method, profile_trainer(settings, trainer.seed))
+        shown = {"epochs"} if hasattr(method.options, "epochs") else set()
+        training_overrides = {  # epochs shows as the method's own option when it has one
+            k: v for k, v in training.items() if k not in shown and base.get(k) != v
+        }
+    return make_variant(
+        method.name,
+        method.config(),
+        method.overrides(),
+        req.protocol,
+        settings.profile_name,
+        training=training,
+        training_overrides=training_overrides,
+        train_data=dataset.training_fingerprint() if training is not None else None,
+        checkpoint_file=_given_checkpoint_key(req.checkpoint) if req.checkpoint else None,
+        label=req.label,
+        weights=weights,
+    )
+
+
+def _method_factory(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    req: EvalRequest,
+    settings: Settings,
+    trainer: TrainerOptions,
+    checkpoint: dict[str, str],
+    weights_seconds: list[float],
+) -> Callable[[], Method]:
+    """The runner's method factory; the wall time of each :func:`ensure_checkpoint` (a training,
+    or a reference install) is appended to ``weights_seconds``."""
+
+    def make() -> Method:
+        instance = method.instantiate()
+        if method.cls.trains:
+            if req.checkpoint:
+                path = req.checkpoint
+            else:
+                start = time.perf_counter()
+                record = ensure_checkpoint(
+                    method,
+                    dataset,
+                    trainer,
+                    settings,
+                    Path(req.data_root) if req.data_root else None,
+                    req.quiet,
+                    retrain=req.retrain,
+                )
+                weights_seconds.append(time.perf_counter() - start)
+                path = record["path"]
+                if record.get("run_id"):
+                    checkpoint["run_id"] = record["run_id"]
+            instance.load_checkpoint(Path(path))
+        return instance
+
+    return make

@@ -1,0 +1,150 @@
+"""From names and overrides to configured method, dataset and metric instances."""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shapebench.api import options as opts
+from shapebench.api.dataset import Dataset
+from shapebench.api.errors import ConfigError, DataNotFoundError
+from shapebench.api.method import Method
+from shapebench.api.metric import Metric
+from shapebench.config import Settings, plugin_overrides
+from shapebench.registry.discovery import Registration, Registry
+
+
+@dataclass
+class ResolvedMethod:
+    registration: Registration
+    cls: type[Method]
+    options: Any
+    #: The options before the run's own overrides (plugin defaults, config file, profile):
+    #: what a leaderboard row's label is relative to.
+    base_options: Any = None
+
+    @property
+    def name(self) -> str:
+        return self.registration.name
+
+    @property
+    def display_name(self) -> str:
+        return self.cls.display_name or self.name
+
+    def code(self) -> str:
+        """Digest of the source the method's results depend on (see
+        shapebench.registry.code_digest)."""
+        return self._code
+
+    @functools.cached_property
+    def _code(self) -> str:  # computed once: config() runs for every cell of a run
+        from shapebench.registry.code_digest import code_digest
+
+        return code_digest(self.cls)
+
+    def effective_options(self) -> Any:
+        """The options as the method instance holds them: values a method fills in itself
+        (recipe-dependent ``None`` options) are resolved, so params and keys show what ran."""
+        return self._effective
+
+    @functools.cached_property
+    def _effective(self) -> Any:  # one instance, not one per cell
+        return getattr(self.instantiate(), "options", self.options)
+
+    def config(self) -> dict[str, Any]:
+        plugin = self.registration.plugin
+        return {
+            "name": self.name,
+            "options": opts.as_dict(self.effective_options()),
+            "distribution": plugin.distribution,
+            "version": plugin.version,
+            "code": self.code(),
+        }
+
+    def overrides(self) -> dict[str, Any]:
+        """The options this run sets differently from the profile's defaults."""
+        if self.base_options is None:
+            return {}
+        base, final = opts.as_dict(self.base_options), opts.as_dict(self.options)
+        return {k: v for k, v in final.items() if base.get(k) != v}
+
+    def with_options(self, **changes: Any) -> ResolvedMethod:
+        from dataclasses import replace
+
+        return ResolvedMethod(
+            self.registration, self.cls, replace(self.options, **changes), self.base_options
+        )
+
+    def training_config(self) -> dict[str, Any]:
+        """What determines a training's result: options that only affect completion are left out."""
+        from dataclasses import fields
+
+        effective = self.effective_options()
+        opts_dict = {
+            f.name: getattr(effective, f.name)
+            for f in fields(effective)
+            if not f.metadata.get("completion_only")
+        }
+        plugin = self.registration.plugin
+        return {
+            "family": self.cls.checkpoint_family or self.name,
+            "options": opts_dict,
+            "distribution": plugin.distribution,
+            "version": plugin.version,
+            "code": self.code(),
+        }
+
+    def instantiate(self) -> Method:
+        return self.cls(self.options)
+
+
+def resolve_method(
+    registry: Registry, name: str, settings: Settings, *overrides: dict[str, Any]
+) -> ResolvedMethod:
+    reg = registry.get("method", name)
+    cls = reg.load()
+    values = plugin_overrides("method", name, settings.profile)
+    base = opts.build(cls.Options, values, f"method {name!r}")
+    for o in overrides:
+        values.update(o or {})
+    return ResolvedMethod(reg, cls, opts.build(cls.Options, values, f"method {name!r}"), base)
+
+
+def resolve_dataset(
+    registry: Registry,
+    name: str,
+    settings: Settings,
+    data_root: str | Path | None,
+    *overrides: dict[str, Any],
+) -> Dataset:
+    reg = registry.get("dataset", name)
+    cls = reg.load()
+    values = plugin_overrides("dataset", name, settings.profile)
+    for o in overrides:
+        values.update(o or {})
+    options = opts.build(cls.Options, values, f"dataset {name!r}")
+    root = data_root or os.environ.get(f"SHAPEBENCH_{name.upper().replace('-', '_')}_ROOT")
+    if cls.needs_data_root:
+        hint = (
+            getattr(cls, "obtain_hint", None) or f"pass --data-root pointing to your copy of {name}"
+        )
+        if not root:
+            raise DataNotFoundError(
+                f"dataset {name!r} reads a local copy, and none was given", hint
+            )
+        if not Path(root).exists():
+            raise DataNotFoundError(f"data root {root} for dataset {name!r} does not exist", hint)
+    elif root and not Path(root).exists():
+        raise DataNotFoundError(f"data root {root} does not exist")
+    dataset = cls(options, settings.cache_dir, Path(root) if root else None)
+    return dataset
+
+
+def resolve_metrics(registry: Registry, names: list[str] | None) -> list[Metric]:
+    names = names or registry.names("metric")
+    if not names:
+        raise ConfigError("no metric is installed", "reinstall shapebench: it provides chamfer-l2")
+    return [registry.load("metric", n)() for n in names]

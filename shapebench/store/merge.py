@@ -1,0 +1,207 @@
+"""Merging MLflow stores: the offline workflow for compute nodes without a tracking server.
+
+Jobs on nodes that cannot reach a server each log to a SQLite store of their own (a workspace per
+job); ``shapebench merge STORE... --into URI`` then imports their finished work into the main
+store. Runs are matched by what identifies them, never by run id:
+
+- a cell by its cell key (``shapebench.cell_key``, see :mod:`shapebench.store.records`),
+- a training by its checkpoint key,
+- a parent run by its parent key,
+
+so merging the same store twice, or two stores holding the same cell, adds each run once. A cell
+already in the target keeps the target's scores; where the source's scores of that key differ by
+more than the cell-key contract allows (:data:`shapebench.api.protocol.SCORE_RTOL`, relative: other
+thread counts and machines agree to it, not bitwise), the merge reports the cell as
+disagreeing, since the two stores then did not compute the same thing under one key. Only
+FINISHED cells and trainings are imported (an unfinished one is work to redo); the copy keeps the
+source's tags, params, metric histories (with their steps and timestamps), start and end times
+and artifacts, and records where it came from (tag ``shapebench.merged_from``). A copied cell's
+``training_run_id`` is re-pointed at the target's run of the same training (copied, or already
+there under its checkpoint key): run ids mean nothing across stores, and the leaderboard's cost
+column reads that tag.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.protocol import SCORE_RTOL, scores_agree
+from shapebench.store.records import CELL_KEY_TAG, KIND_TAG, TRAINING_RUN_TAG, CellRecord
+from shapebench.store.tracking import CELL_KIND, PARENT_KIND, TRAINING_KIND
+
+#: The tag that identifies each kind of run across stores.
+IDENTITY = {
+    CELL_KIND: CELL_KEY_TAG,
+    TRAINING_KIND: "checkpoint_key",
+    PARENT_KIND: "shapebench.parent_key",
+}
+MERGED_FROM = "shapebench.merged_from"
+#: The order runs are merged in: trainings first (their experiment may come after the cells'),
+#: so that a copied cell can name its training's run in the target; parents before children.
+_ORDER = {TRAINING_KIND: 0, PARENT_KIND: 1}
+
+
+def _rank(run: Any) -> int:
+    return _ORDER.get(run.data.tags.get(KIND_TAG, ""), 2)
+
+
+@dataclass
+class MergeReport:
+    """What one merge did, per kind of run."""
+
+    added: dict[str, int] = field(default_factory=dict)
+    present: dict[str, int] = field(default_factory=dict)
+    skipped_unfinished: int = 0
+    #: Cell keys present in both stores whose scores differ beyond the cell-key tolerance.
+    disagreeing: list[str] = field(default_factory=list)
+
+    def line(self) -> str:
+        kinds = sorted(set(self.added) | set(self.present))
+        parts = [f"{self.added.get(k, 0)} {k} runs added, {self.present.get(k, 0)} already there"
+                 for k in kinds]  # fmt: skip
+        if self.skipped_unfinished:
+            parts.append(f"{self.skipped_unfinished} unfinished runs left out")
+        if self.disagreeing:
+            keys = ", ".join(self.disagreeing[:3]) + (", ..." if len(self.disagreeing) > 3 else "")
+            parts.append(
+                f"{len(self.disagreeing)} cells kept whose scores differ from the source's "
+                f"beyond a relative {SCORE_RTOL:g} (keys {keys})"
+            )
+        return "; ".join(parts) or "nothing to merge"
+
+
+def store_uri(store: str) -> str:
+    """A tracking URI for ``store``: a URI as given, a ``.db`` file, or a workspace folder."""
+    if "://" in store:
+        return store
+    path = Path(store).absolute()
+    if path.is_dir():
+        path = path / "mlflow.db"
+    if not path.exists():
+        raise ShapebenchError(
+            f"no MLflow store at {store} (looked for {path})",
+            "give a workspace folder, its mlflow.db, or a tracking URI",
+        )
+    return f"sqlite:///{path}"
+
+
+def merge_stores(
+    sources: list[str], target_uri: str, echo: Callable[[str], None] = print
+) -> MergeReport:
+    """Import the finished runs of every store in ``sources`` into ``target_uri``."""
+    from shapebench.store.tracking import open_client
+
+    target = open_client(target_uri)
+    report = MergeReport()
+    for source in sources:
+        uri = store_uri(source)
+        if uri == target_uri:
+            raise ShapebenchError(f"cannot merge {source} into itself")
+        before = dict(report.added)
+        _merge_one(open_client(uri), uri, target, target_uri, report)
+        new = sum(report.added.values()) - sum(before.values())
+        echo(f"{source}: {new} runs added")
+    return report
+
+
+def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
+               report: MergeReport) -> None:  # fmt: skip
+    batches = []
+    for exp in source.search_experiments():
+        runs = sorted(source.search_runs([exp.experiment_id], max_results=50000), key=_rank)
+        if runs:
+            batches.append((exp, runs))
+    batches.sort(key=lambda batch: _rank(batch[1][0]))
+    merged: dict[str, str] = {}  # source run id -> target run id (trainings and parents)
+    for exp, runs in batches:
+        target_exp = _experiment(target, target_uri, exp.name)
+        for run in runs:
+            kind = run.data.tags.get(KIND_TAG, "")
+            if kind not in IDENTITY:
+                continue
+            if kind != PARENT_KIND and run.info.status != "FINISHED":
+                report.skipped_unfinished += 1
+                continue
+            key = run.data.tags.get(IDENTITY[kind], "")
+            existing = _find(target, target_exp, kind, key, run)
+            if existing is not None:
+                merged[run.info.run_id] = existing.info.run_id
+                if kind == CELL_KIND and _scores_differ(run, existing):
+                    report.disagreeing.append(key)
+                report.present[kind] = report.present.get(kind, 0) + 1
+                continue
+            parent = merged.get(run.data.tags.get("mlflow.parentRunId", ""))
+            training = merged.get(run.data.tags.get(TRAINING_RUN_TAG, ""))
+            merged[run.info.run_id] = _copy(source, target, target_exp, run, source_uri, parent,
+                                            training)  # fmt: skip
+            report.added[kind] = report.added.get(kind, 0) + 1
+
+
+def _experiment(client: Any, uri: str, name: str) -> str:
+    exp = client.get_experiment_by_name(name)
+    if exp is not None:
+        return exp.experiment_id
+    location = None
+    if uri.startswith("sqlite:///"):  # artifacts beside the embedded store, as shapebench does
+        path = Path(uri[len("sqlite:///") :]).parent / "artifacts" / name
+        path.mkdir(parents=True, exist_ok=True)
+        location = path.as_uri()
+    return client.create_experiment(name, artifact_location=location)
+
+
+def _scores_differ(run: Any, other: Any) -> bool:
+    """Whether two runs of one cell key hold scores (each metric's mean, median and std) that
+    differ beyond the cell-key tolerance."""
+    names = CellRecord.from_run(run).cards
+    ours, theirs = run.data.metrics, other.data.metrics
+    for name in names:
+        for stat in ("mean", "median", "std"):
+            key = f"{name}.{stat}"
+            if key in ours and key in theirs and not scores_agree(ours[key], theirs[key]):
+                return True
+    return False
+
+
+def _find(client: Any, exp_id: str, kind: str, key: str, run: Any) -> Any | None:
+    """The target's run with the same identity (a parent: merged from the same source run)."""
+    if kind == PARENT_KIND:
+        flt = f"tags.`{MERGED_FROM}` LIKE '%{run.info.run_id}'"
+    else:
+        flt = f"tags.`{IDENTITY[kind]}` = '{key}' and attributes.status = 'FINISHED'"
+    found = client.search_runs([exp_id], filter_string=flt, max_results=1)
+    return found[0] if found else None
+
+
+def _copy(source: Any, target: Any, exp_id: str, run: Any, source_uri: str,
+          parent: str | None, training: str | None = None) -> str:  # fmt: skip
+    from mlflow.entities import Metric, Param
+
+    tags = {k: v for k, v in run.data.tags.items() if k != "mlflow.parentRunId"}
+    tags[MERGED_FROM] = f"{source_uri}#{run.info.run_id}"
+    if parent:
+        tags["mlflow.parentRunId"] = parent
+    if training:
+        tags[TRAINING_RUN_TAG] = training
+    new = target.create_run(exp_id, start_time=run.info.start_time, tags=tags,
+                            run_name=run.info.run_name)  # fmt: skip
+    run_id = new.info.run_id
+    params = [Param(k, v) for k, v in run.data.params.items()]
+    for start in range(0, len(params), 100):
+        target.log_batch(run_id, params=params[start : start + 100])
+    metrics = [Metric(m.key, m.value, m.timestamp, m.step)
+               for key in run.data.metrics
+               for m in source.get_metric_history(run.info.run_id, key)]  # fmt: skip
+    for start in range(0, len(metrics), 1000):
+        target.log_batch(run_id, metrics=metrics[start : start + 1000])
+    with tempfile.TemporaryDirectory() as tmp:
+        if source.list_artifacts(run.info.run_id):
+            local = source.download_artifacts(run.info.run_id, "", tmp)
+            target.log_artifacts(run_id, local)
+    status = run.info.status if run.info.status in ("FINISHED", "FAILED", "KILLED") else "KILLED"
+    target.set_terminated(run_id, status=status, end_time=run.info.end_time)
+    return run_id

@@ -1,0 +1,407 @@
+"""MLflow as the record of every run: store selection, reachability, the cell ledger.
+
+Layout: one experiment per dataset and split (``<dataset>-<split>``, e.g. ``synthetic-novel``).
+Each ``shapebench run`` (or each method x dataset x split of a sweep) makes a *parent* run; each
+cell (one context size and seed) is a *child* run tagged ``shapebench.cell_key``: a hash of the
+cell's whole resolved config. A cell whose key already has a FINISHED run is skipped, which makes
+runs and sweeps resumable after Ctrl-C or ``kill -9``; a RUNNING run left behind by a killed
+process is marked KILLED when its cell is run again.
+
+Several processes may share one workspace: the embedded store's schema is created under a lock
+(:func:`_open_store`), and the runner claims each cell with a lock before computing it
+(:func:`cell_lock_path`), so two runs started together compute and log every cell once.
+
+All logging goes through an explicit :class:`~mlflow.tracking.MlflowClient` with an explicit URI:
+MLflow >= 3.13 refuses the implicit ``./mlruns`` file store.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import urllib.error
+import urllib.request
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shapebench.api.errors import TrackingError
+from shapebench.config import Settings
+
+CELL_KIND = "cell"
+PARENT_KIND = "parent"
+TRAINING_KIND = "training"
+
+
+def experiment_name(dataset: str, split: str) -> str:
+    return f"{dataset}-{split}"
+
+
+def training_experiment_name(dataset: str) -> str:
+    """The experiment of the trainings on ``dataset``. Stores written before it had this name
+    hold them in ``<dataset>-train``, which sat beside ``<dataset>-trained`` and was easily
+    taken for it; those are still read (every reader selects runs by their kind tag)."""
+    return f"training/{dataset}"
+
+
+#: Experiment names that held trainings in older stores (never a split of the leaderboards).
+LEGACY_TRAINING_SUFFIX = "-train"
+
+#: The experiment tag the MLflow UI reads a shared view from (``?viewStateShareKey=...``).
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+#: shapebench's view of an evaluation experiment: the metric columns shown in the runs table.
+VIEW_KEY = "shapebench"
+
+
+def check_reachable(uri: str, timeout: float = 5.0) -> None:
+    """Fail fast, before any work, when the tracking server does not answer."""
+    if not uri.startswith(("http://", "https://")):
+        if uri.startswith("sqlite:///"):
+            Path(uri[len("sqlite:///") :]).parent.mkdir(parents=True, exist_ok=True)
+        return
+    try:
+        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout) as resp:
+            if resp.status >= 400:
+                raise OSError(f"HTTP {resp.status}")
+    except (OSError, urllib.error.URLError) as exc:
+        reason = getattr(exc, "reason", exc)
+        raise TrackingError(
+            f"cannot reach the MLflow tracking server at {uri} ({reason})",
+            "start it (mlflow server --host 127.0.0.1 --port 5000 ...), fix --tracking-uri / "
+            "MLFLOW_TRACKING_URI, or unset them to use the embedded sqlite store",
+        ) from exc
+
+
+@dataclass
+class FinishedCell:
+    run_id: str
+    metrics: dict[str, float]
+    #: Metrics that raised on some object of this cell (tag ``shapebench.metric_errors``).
+    metric_errors: frozenset[str] = frozenset()
+    #: The run's tags, read back (a :class:`shapebench.store.records.CellRecord`).
+    record: Any = None
+
+
+class Tracker:
+    """Thin layer over MlflowClient with shapebench's naming and tagging conventions."""
+
+    def __init__(self, settings: Settings) -> None:
+        check_reachable(settings.tracking_uri)
+        self.settings = settings
+        self.uri = settings.tracking_uri
+        self.client = open_client(self.uri)
+        self._experiments: dict[str, str] = {}
+
+    def experiment_id(self, name: str, create: bool = True) -> str | None:
+        if name in self._experiments:
+            return self._experiments[name]
+        exp = self.client.get_experiment_by_name(name)
+        if exp is None:
+            if not create:
+                return None
+            location = None
+            if not self.settings.is_remote:  # keep artifacts beside the embedded store
+                path = self.settings.artifact_root / name
+                path.mkdir(parents=True, exist_ok=True)
+                location = path.as_uri()
+            exp_id = self._create_experiment(name, location)
+        else:
+            exp_id = exp.experiment_id
+        self._experiments[name] = exp_id
+        return exp_id
+
+    def _create_experiment(self, name: str, location: str | None) -> str:
+        from mlflow.exceptions import MlflowException
+
+        try:
+            # The UI opens a "custom model development" experiment on its runs table and charts
+            # (without the tag it guesses, and may open the GenAI traces views).
+            return self.client.create_experiment(
+                name, artifact_location=location, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND}
+            )
+        except MlflowException:
+            # Another process created it between our lookup and our creation: use theirs.
+            exp = self.client.get_experiment_by_name(name)
+            if exp is None:
+                raise
+            return exp.experiment_id
+
+    def describe_experiment(self, exp_id: str, note: str, metrics: Sequence[str] = ()) -> None:
+        """The experiment's description (``mlflow.note.content``, shown above its runs) and,
+        given the metrics of its cells, shapebench's view of it: the runs table with those
+        metrics as columns (see :func:`view_state`), opened by :func:`experiment_url`."""
+        tags = {"mlflow.note.content": note}
+        if metrics:
+            tags[VIEW_TAG_PREFIX + VIEW_KEY] = json.dumps(view_state(metrics))
+        exp = self.client.get_experiment(exp_id)
+        for key, value in tags.items():
+            if exp.tags.get(key) != value:  # written once per change, not per run
+                self.client.set_experiment_tag(exp_id, key, value)
+
+    def find_cell(self, exp_id: str, key: str) -> FinishedCell | None:
+        finished = "attributes.status = 'FINISHED'"
+        runs = self.client.search_runs(
+            [exp_id],
+            filter_string=f"tags.`shapebench.cell_key` = '{key}' and {finished}",
+            order_by=["attributes.start_time DESC"],
+            max_results=1,
+        )
+        if not runs:
+            return None
+        from shapebench.store.records import CellRecord
+
+        record = CellRecord.from_run(runs[0])
+        return FinishedCell(runs[0].info.run_id, dict(runs[0].data.metrics),
+                            frozenset(record.metric_errors), record)  # fmt: skip
+
+    def abandon_stale(self, exp_id: str, key: str, tag: str = "shapebench.cell_key") -> int:
+        """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""
+        runs = self.client.search_runs(
+            [exp_id],
+            filter_string=f"tags.`{tag}` = '{key}' and attributes.status = 'RUNNING'",
+        )
+        for run in runs:
+            self.client.set_terminated(run.info.run_id, status="KILLED")
+        return len(runs)
+
+    def start_run(
+        self,
+        exp_id: str,
+        name: str,
+        tags: dict[str, str],
+        parent_id: str | None = None,
+    ) -> str:
+        # MLflow's own tags (user, source, commit: the UI's Source and User columns) and where
+        # the result came from (library versions, hardware), then shapebench's.
+        all_tags = {**run_context_tags(), **tags}
+        if parent_id:
+            all_tags["mlflow.parentRunId"] = parent_id
+        run = self.client.create_run(exp_id, run_name=name, tags=all_tags)
+        return run.info.run_id
+
+    def log_params(self, run_id: str, params: dict[str, Any]) -> None:
+        from mlflow.entities import Param
+
+        items = [Param(k, _param_str(v)) for k, v in sorted(params.items())]
+        for start in range(0, len(items), 100):
+            self.client.log_batch(run_id, params=items[start : start + 100])
+
+    def log_metrics(self, run_id: str, metrics: dict[str, float], step: int = 0) -> None:
+        import time
+
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        items = [Metric(k, float(v), now, step) for k, v in sorted(metrics.items())]
+        self.client.log_batch(run_id, metrics=items)
+
+    def log_dataset(self, run_id: str, name: str, digest: str, source: dict[str, Any],
+                    profile: dict[str, Any], context: str) -> None:  # fmt: skip
+        """Record the evaluated objects as the run's dataset input (the UI's Dataset column)."""
+        from mlflow.entities import Dataset, DatasetInput, InputTag
+
+        dataset = Dataset(name=name, digest=digest[:36], source_type="local",
+                          source=json.dumps(source, default=str),
+                          profile=json.dumps(profile, default=str))  # fmt: skip
+        tags = [InputTag(key="mlflow.data.context", value=context)]
+        self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset, tags=tags)])
+
+    def end(self, run_id: str, status: str = "FINISHED") -> None:
+        self.client.set_terminated(run_id, status=status)
+
+
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
+
+
+#: The chart section shapebench's view opens with (before MLflow's own "Model metrics").
+CHART_SECTION = "shapebench-context"
+
+
+def view_state(metrics: list[str]) -> dict[str, Any]:
+    """The MLflow UI's view state for an experiment (the JSON its "Share" button stores): the
+    runs table shows these metrics (and the dataset) as columns instead of hiding every metric
+    behind "Show more columns", and the chart view opens on a line chart per metric against
+    the step, which is the context size on parent runs (log axis, as the paper's plots)."""
+    columns = [f"metrics.`{m}`" for m in metrics] + ["attributes.`Dataset`"]
+    charts = [
+        {
+            "type": "LINE", "uuid": f"shapebench-{i}", "metricSectionId": CHART_SECTION,
+            "isGenerated": False, "deleted": False, "runsCountToCompare": 10,
+            "displayName": f"{metric} against context size",
+            "metricKey": metric, "selectedMetricKeys": [metric], "lineSmoothness": 0,
+            "xAxisKey": "step", "xAxisScaleType": "log", "scaleType": "linear",
+            "selectedXAxisMetricKey": "", "displayPoints": True, "yAxisKey": "metric",
+            "yAxisExpressions": [], "ignoreOutliers": False,
+            "useGlobalXaxisKey": False, "useGlobalLineSmoothing": False,
+            "range": {"xMin": None, "xMax": None, "yMin": None, "yMax": None},
+        }
+        for i, metric in enumerate(metrics)
+    ]  # fmt: skip
+    section = {"uuid": CHART_SECTION, "name": "Against context size (step = context points)",
+               "display": True, "isReordered": False, "deleted": False,
+               "isGenerated": False}  # fmt: skip
+    return {"selectedColumns": columns, "compareRunCharts": charts, "compareRunSections": [section]}
+
+
+def experiment_url(base: str, exp_id: str, charts: bool = False, view: bool = True) -> str:
+    """The link to an experiment's runs page in the MLflow UI at ``base`` (``#/experiments/<id>
+    /runs``), opening shapebench's view of it and, with ``charts``, its chart view."""
+    query = [f"viewStateShareKey={VIEW_KEY}"] if view else []
+    if charts:
+        query.append("compareRunsMode=CHART")
+    return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs" + ("?" + "&".join(query) if query
+                                                                else "")  # fmt: skip
+
+
+def run_url(base: str, exp_id: str, run_id: str) -> str:
+    """The link to one run's page in the MLflow UI at ``base``."""
+    return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs/{run_id}"
+
+
+@functools.lru_cache(maxsize=1)
+def run_context_tags() -> dict[str, str]:
+    """MLflow's standard tags and this process's provenance, on every run shapebench starts."""
+    import getpass
+    import platform
+    import sys
+
+    from shapebench import __version__
+    from shapebench.store.provenance import git_commit
+
+    commit = git_commit()
+    tags = {
+        "mlflow.user": _safe(getpass.getuser),
+        "mlflow.source.type": "LOCAL",
+        "mlflow.source.name": " ".join(["shapebench", *sys.argv[1:]])[:500],
+        "shapebench.version": __version__,
+        "versions.python": platform.python_version(),
+        "host.platform": platform.platform(),
+        "host.cpus": str(os.cpu_count() or 0),
+    }
+    if commit != "unknown":
+        tags["mlflow.source.git.commit"] = commit.removesuffix("-dirty")
+        tags["git.dirty"] = str(commit.endswith("-dirty"))
+    # Versions from the installed metadata: importing torch here would cost seconds per command.
+    for dist in ("mlflow", "numpy", "torch", "pytorch-lightning", "trimesh"):
+        version = _dist_version(dist)
+        if version:
+            tags[f"versions.{dist}"] = version
+    cpu = _cpu_model()
+    if cpu:
+        tags["host.cpu"] = cpu
+    memory = _memory_gb()
+    if memory:
+        tags["host.memory_gb"] = f"{memory:.0f}"
+    gpus = _gpu_names()
+    if gpus:
+        tags["host.gpus"] = gpus
+    return tags
+
+
+def _safe(fn: Any) -> str:
+    try:
+        return str(fn())
+    except Exception:  # no user name in a container without passwd entry: not worth failing
+        return "unknown"
+
+
+def _dist_version(dist: str) -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return ""
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor()
+
+
+def _memory_gb() -> float:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError, AttributeError):
+        return 0.0
+
+
+def _gpu_names() -> str:
+    """The GPUs of this machine, from the NVIDIA driver's files (no CUDA initialisation)."""
+    names = []
+    for info in sorted(Path("/proc/driver/nvidia/gpus").glob("*/information")):
+        try:
+            for line in info.read_text().splitlines():
+                if line.startswith("Model:"):
+                    names.append(line.split(":", 1)[1].strip())
+        except OSError:
+            continue
+    return ", ".join(names)
+
+
+def _retire_default_experiment(client: Any) -> None:
+    """MLflow creates an experiment "Default" in every new store, with its artifacts in
+    ``./mlruns`` of whatever directory the store was opened from. shapebench never logs to it,
+    so an empty one is deleted: the UI then lists only shapebench's experiments, and nothing
+    can write to a stray ./mlruns."""
+    from mlflow.exceptions import MlflowException
+
+    try:
+        exp = client.get_experiment("0")
+        if exp is None or exp.name != "Default" or exp.lifecycle_stage != "active":
+            return
+        if client.search_runs(["0"], max_results=1, run_view_type=3):
+            return  # someone logged to it: theirs to keep
+        client.delete_experiment("0")
+    except MlflowException:
+        pass  # already deleted by another process, or a store without an experiment 0
+
+
+def open_client(uri: str) -> Any:
+    """An ``MlflowClient`` for ``uri``; an embedded store is opened under a lock.
+
+    MLflow creates (or upgrades) a SQLite store's schema when a client opens it; two processes
+    doing that at once make the second fail (``duplicate column name``). The lock beside the
+    database file makes them take turns.
+    """
+    from mlflow.tracking import MlflowClient
+
+    if not uri.startswith("sqlite:///"):
+        return MlflowClient(tracking_uri=uri)
+    from shapebench.store.locks import wait_lock
+
+    db = Path(uri[len("sqlite:///") :])
+    with wait_lock(db.with_name(db.name + ".init.lock")):
+        client = MlflowClient(tracking_uri=uri)
+        _retire_default_experiment(client)
+        return client
+
+
+def cell_lock_path(settings: Settings, key: str) -> Path:
+    """The lock a process holds while it computes the cell with this key."""
+    return settings.artifact_root.parent / "locks" / "cells" / f"{key}.lock"
+
+
+def _param_str(value: Any) -> str:
+    text = value if isinstance(value, str) else json.dumps(value, default=str)
+    return text[:6000]  # MLflow's limit for a param value
+
+
+def flatten(prefix: str, obj: Any) -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}`` for MLflow params."""
+    if isinstance(obj, dict):
+        out: dict[str, Any] = {}
+        for k, v in obj.items():
+            out.update(flatten(f"{prefix}.{k}" if prefix else str(k), v))
+        return out
+    return {prefix: obj}

@@ -1,0 +1,627 @@
+"""Running a sweep as cluster jobs through submitit (``--launcher slurm``, ``submitit-local``).
+
+The sweep is planned first (:mod:`shapebench.sweeps.plan`): only the cells that have no finished
+run, and the trainings they need, are submitted, so resubmitting an interrupted sweep submits
+exactly what is missing.
+
+- **A training is one job**: ``nodes`` = the trainer's ``--num-nodes`` and ``ntasks_per_node`` =
+  its ``--devices``, so ``srun`` starts one process per rank and Lightning's SLURM environment
+  sees the right world size. Its checkpoint key (and so the key of every cell evaluating it) is
+  the same as on a laptop with those trainer settings.
+- **Cells form job arrays** (``cells_per_job`` cells per array task, at most
+  ``array_parallelism`` tasks at once); an array whose cells need a training depends on that
+  training's job (``afterok``, and SLURM cancels the array if the training fails).
+- **Pre-emption**: SLURM sends SIGUSR1 ``signal_delay_s`` before a job's end (submitit's
+  ``--signal``). A training stops after its optimiser step, writes ``last.ckpt`` and requeues
+  its job (:func:`requeue_after`), which resumes from it; a cell job is requeued by submitit
+  and recomputes its unfinished cells.
+- **Tracking**: jobs on many nodes must not share one SQLite file, so a slurm sweep needs an
+  MLflow server (``--tracking-uri http://...``) or ``tracking: per-job``: every job logs to
+  ``<workspace>/stores/job-<id>.db``, and ``sweep --status``, ``--wait`` and ``shapebench merge``
+  import the finished runs into the main store (idempotent, by cell key).
+
+``submitit-local`` runs the same jobs as processes on this machine (submitit's local executor),
+without dependencies (trainings are waited for before their cells are submitted): a way to
+check a cluster setup, and how the suite tests this module.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from shapebench.api.errors import ConfigError, ShapebenchError
+from shapebench.config import Settings, make_settings
+from shapebench.sweeps.plan import CellTask, SweepPlan, TrainingTask
+
+#: SLURM's pre-emption warning (``--signal=USR1@90``): also what Lightning listens to. submitit
+#: reads this variable when imported, in the submitting process and in every job.
+PREEMPT_SIGNAL = "USR1"
+CLUSTER_LAUNCHERS = ("slurm", "submitit-local")
+
+
+@dataclass
+class LauncherConfig:
+    """The ``launcher:`` block of a sweep file (and ``--slurm KEY=VALUE`` on the command line).
+
+    ``methods`` maps a method name to overrides of any other key for that method's jobs, like
+    benchopt's ``slurm_params``; ``extra`` holds sbatch options submitit has no name for.
+    """
+
+    name: str = "inline"
+    partition: str | None = None
+    time: int = 60  # minutes per job
+    gpus_per_node: int = 0
+    cpus_per_task: int = 1
+    mem_gb: float | None = None
+    account: str | None = None
+    qos: str | None = None
+    constraint: str | None = None
+    array_parallelism: int = 32
+    cells_per_job: int = 1
+    signal_delay_s: int = 90
+    tracking: str = "server"  # or "per-job"
+    setup: list[str] = field(default_factory=list)  # shell lines run before the job (module load)
+    extra: dict[str, Any] = field(default_factory=dict)
+    methods: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def for_method(self, name: str) -> LauncherConfig:
+        return _apply(self, self.methods.get(name, {}), f"launcher.methods.{name}")
+
+
+def _apply(cfg: LauncherConfig, values: dict[str, Any], where: str) -> LauncherConfig:
+    known = {f.name: f for f in fields(LauncherConfig)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown launcher keys {unknown}",
+            f"known keys: {', '.join(sorted(known))}",
+        )
+    out = {}
+    for key, value in values.items():
+        default = getattr(cfg, key)
+        if isinstance(default, bool) or default is None or isinstance(default, (dict, list)):
+            out[key] = value
+        elif isinstance(default, (int, float)) and isinstance(value, str):
+            try:
+                out[key] = type(default)(value)
+            except ValueError:
+                raise ConfigError(f"{where}: {key} must be a number, got {value!r}") from None
+        else:
+            out[key] = value
+    return replace(cfg, **out)
+
+
+def launcher_config(block: dict[str, Any], overrides: dict[str, Any],
+                    name: str | None) -> LauncherConfig:  # fmt: skip
+    """The sweep file's block, then the command line's ``--slurm`` values and ``--launcher``."""
+    cfg = _apply(LauncherConfig(), block, "launcher")
+    cfg = _apply(cfg, overrides, "--slurm")
+    if name is not None:
+        cfg = replace(cfg, name=name)
+    if cfg.tracking not in ("server", "per-job"):
+        raise ConfigError(f"launcher.tracking must be 'server' or 'per-job', got {cfg.tracking!r}")
+    if cfg.cells_per_job < 1 or cfg.array_parallelism < 1:
+        raise ConfigError("launcher.cells_per_job and array_parallelism must be at least 1")
+    return cfg
+
+
+def check_tracking(cfg: LauncherConfig, settings: Settings) -> None:
+    """Refuse one SQLite store written by jobs on several nodes (it corrupts over NFS)."""
+    if cfg.name == "slurm" and not settings.is_remote and cfg.tracking != "per-job":
+        raise ShapebenchError(
+            "a slurm sweep cannot log every job to one SQLite file "
+            f"({settings.tracking_uri}): SQLite over a network filesystem corrupts",
+            "start an MLflow server the nodes can reach and pass --tracking-uri http://HOST:PORT, "
+            "or add 'tracking: per-job' to the launcher block (each job logs to its own store "
+            "under the workspace's stores/, merged by 'sweep --status', '--wait' or "
+            "'shapebench merge')",
+        )
+
+
+# --------------------------------------------------------------------------------------- jobs
+
+
+@dataclass
+class JobContext:
+    """What every job needs to rebuild the sweep exactly as the submitting process saw it."""
+
+    sweep_file: str
+    profile: str | None
+    tracking_uri: str
+    cache_dir: str
+    workspace: str
+    trainer: dict[str, Any]
+    frame: str | None = None
+    context_normals: bool | None = None
+    per_job_store: bool = False
+    threads: int | None = None
+
+    def settings(self) -> Settings:
+        settings = make_settings(self.tracking_uri, self.cache_dir, self.profile, self.workspace)
+        if self.per_job_store:
+            store = Path(self.workspace) / "stores" / f"job-{job_id()}.db"
+            store.parent.mkdir(parents=True, exist_ok=True)
+            settings = replace(settings, tracking_uri=f"sqlite:///{store}")
+        return settings
+
+    def spec(self) -> Any:
+        from shapebench.api.protocol import Protocol
+        from shapebench.sweeps.spec import load_sweep
+
+        spec = load_sweep(Path(self.sweep_file))
+        if self.frame is not None or self.context_normals is not None:
+            spec = replace(spec, protocol=Protocol(
+                context_normals=(spec.protocol.context_normals if self.context_normals is None
+                                 else self.context_normals),
+                frame=self.frame or spec.protocol.frame))  # fmt: skip
+        return spec
+
+    def trainer_for_seed(self, settings: Settings) -> Callable[[int], Any]:
+        from shapebench.train.training import trainer_options
+
+        return lambda seed: trainer_options(settings, seed, **self.trainer)
+
+    def start(self) -> None:
+        if self.threads:
+            import torch
+
+            torch.set_num_threads(self.threads)
+
+
+def job_id() -> str:
+    """This job's id: SLURM's (``<array>_<task>`` in an array), submitit's local one, or the pid."""
+    if os.environ.get("SLURM_ARRAY_JOB_ID"):
+        return f"{os.environ['SLURM_ARRAY_JOB_ID']}_{os.environ.get('SLURM_ARRAY_TASK_ID', 0)}"
+    return (
+        os.environ.get("SLURM_JOB_ID")
+        or os.environ.get("SUBMITIT_LOCAL_JOB_ID")
+        or str(os.getpid())
+    )
+
+
+class CellsJob:
+    """A job computing some cells of the sweep, one after another (an array task)."""
+
+    def __init__(self, ctx: JobContext, cells: list[CellTask]) -> None:
+        self.ctx = ctx
+        self.cells = cells
+
+    def __call__(self) -> list[str]:
+        from shapebench.evaluate.orchestrate import evaluate
+        from shapebench.store.tracking import Tracker
+        from shapebench.sweeps.spec import request, sweep_methods
+
+        self.ctx.start()
+        settings = self.ctx.settings()
+        spec = self.ctx.spec()
+        methods = sweep_methods(spec)
+        tracker = Tracker(settings)
+        done, failed = [], []
+        for cell in self.cells:
+            req = request(spec, methods[cell.method_index], spec.datasets[cell.dataset_index],
+                          quiet=True, splits=[cell.split], contexts=[cell.size],
+                          seeds=[cell.seed])  # fmt: skip
+            print(f"[shapebench] {cell.name} (cell key {cell.key})", flush=True)
+            try:
+                outcome = evaluate(req, settings, self.ctx.trainer_for_seed(settings), tracker)
+            except ShapebenchError as exc:  # the job's other cells go on
+                failed.append(f"{cell.name}: {exc.message}")
+                print(f"[shapebench] failed: {exc.message}", file=sys.stderr, flush=True)
+                continue
+            done += [c.run_id for c in outcome.cells]
+        if failed:
+            raise ShapebenchError(f"{len(failed)} of {len(self.cells)} cells failed: "
+                                  + "; ".join(failed))  # fmt: skip
+        return done
+
+    def checkpoint(self) -> Any:
+        """Pre-empted: submitit requeues the same cells; finished ones are skipped then."""
+        import submitit
+
+        return submitit.helpers.DelayedSubmission(CellsJob(self.ctx, self.cells))
+
+
+class TrainingJob:
+    """A training, run by every rank ``srun`` starts (Lightning reads the ranks from SLURM)."""
+
+    def __init__(self, ctx: JobContext, task: TrainingTask) -> None:
+        self.ctx = ctx
+        self.task = task
+
+    def __call__(self) -> str:
+        from shapebench.evaluate.orchestrate import resolve_request
+        from shapebench.sweeps.spec import request, sweep_methods
+        from shapebench.train.lightning_fit import TrainingInterrupted
+        from shapebench.train.training import apply_trainer, checkpoint_key, train_here
+
+        self.ctx.start()
+        settings = self.ctx.settings()
+        spec = self.ctx.spec()
+        entry = sweep_methods(spec)[self.task.method_index]
+        dataset_entry = spec.datasets[self.task.dataset_index]
+        resolved = resolve_request(request(spec, entry, dataset_entry, quiet=True), settings)
+        trainer = self.ctx.trainer_for_seed(settings)(self.task.seed)
+        key = checkpoint_key(apply_trainer(resolved.method, trainer), resolved.dataset, trainer)
+        if key != self.task.key:
+            raise ShapebenchError(
+                f"{self.task.name}: the job computes checkpoint key {key}, the sweep was planned "
+                f"with {self.task.key}: the code, the sweep file or the data changed since "
+                "submission",
+                "resubmit the sweep",
+            )
+        try:
+            record = train_here(resolved.method, resolved.dataset, trainer, settings, quiet=True)
+        except TrainingInterrupted as exc:
+            if exc.signal_name == f"SIG{PREEMPT_SIGNAL}":
+                requeue_after(exc)
+            raise
+        return str(record["path"])
+
+
+def requeue_after(exc: BaseException) -> None:
+    """Pre-empted: rank 0 requeues this job (it resumes from the checkpoint just written), and
+    the job ends without a result, as submitit's own requeue does."""
+    rank = os.environ.get("SLURM_PROCID", "0")
+    job = os.environ.get("SLURM_JOB_ID")
+    if job and rank == "0":
+        why = getattr(exc, "message", str(exc))
+        print(f"[shapebench] pre-empted ({why}); requeueing job {job}", file=sys.stderr,
+              flush=True)  # fmt: skip
+        subprocess.run(["scontrol", "requeue", job], check=False, timeout=60)
+    raise SystemExit(-1)
+
+
+# --------------------------------------------------------------------------------- submission
+
+
+@dataclass
+class Submitted:
+    """One submitted job, as the sweep's manifest records it."""
+
+    job_id: str
+    kind: str  # "training" or "cells"
+    keys: list[str]  # the cell keys, or the checkpoint key
+    names: list[str]
+    stdout: str
+    stderr: str
+    depends_on: str | None = None
+
+
+def manifest_path(settings: Settings, sweep_name: str) -> Path:
+    return settings.artifact_root.parent / "sweeps" / f"{sweep_name}.jsonl"
+
+
+def _executor(cfg: LauncherConfig, folder: Path, ranks: int = 1, nodes: int = 1) -> Any:
+    os.environ.setdefault("SUBMITIT_PREEMPT_SIGNAL", PREEMPT_SIGNAL)
+    import submitit
+
+    if cfg.name == "submitit-local":
+        executor = submitit.LocalExecutor(folder=str(folder))
+        # Lightning launches the ranks of a local training itself, as inline.
+        executor.update_parameters(timeout_min=cfg.time, tasks_per_node=1)
+        return executor
+    executor = submitit.SlurmExecutor(folder=str(folder))
+    params: dict[str, Any] = dict(
+        time=cfg.time, nodes=nodes, ntasks_per_node=ranks, cpus_per_task=cfg.cpus_per_task,
+        array_parallelism=cfg.array_parallelism, signal_delay_s=cfg.signal_delay_s,
+        job_name="shapebench", setup=list(cfg.setup),
+        additional_parameters=dict(cfg.extra),
+    )  # fmt: skip
+    for key in ("partition", "account", "qos", "constraint"):
+        if getattr(cfg, key):
+            params[key] = getattr(cfg, key)
+    if cfg.gpus_per_node:
+        params["gpus_per_node"] = cfg.gpus_per_node
+    if cfg.mem_gb:
+        params["mem"] = f"{cfg.mem_gb}GB"
+    executor.update_parameters(**params)
+    return executor
+
+
+def _ranks(trainer: dict[str, Any]) -> tuple[int, int]:
+    """(tasks per node, nodes) of a training job: one SLURM task per Lightning rank."""
+    devices = str(trainer.get("devices") or "1")
+    per_node = int(devices) if devices.isdigit() else len([d for d in devices.split(",") if d])
+    return max(per_node, 1), max(int(trainer.get("num_nodes") or 1), 1)
+
+
+def submit_plan(
+    plan: SweepPlan,
+    ctx: JobContext,
+    cfg: LauncherConfig,
+    method_names: list[str],
+    folder: Path,
+    echo: Callable[[str], None],
+    jobs: int = 0,
+) -> list[tuple[Submitted, Any]]:
+    """Submit the plan's missing trainings, then its missing cells in arrays that depend on
+    them; ``jobs`` (submitit-local) caps the number of cell jobs at once. Returns each job's
+    record and its submitit job."""
+    folder.mkdir(parents=True, exist_ok=True)
+    out: list[tuple[Submitted, Any]] = []
+    training_jobs: dict[str, Any] = {}
+    ranks, nodes = _ranks(ctx.trainer) if cfg.name == "slurm" else (1, 1)
+    for task in plan.trainings:
+        mcfg = cfg.for_method(method_names[task.method_index])
+        executor = _executor(mcfg, folder, ranks, nodes)
+        job = executor.submit(TrainingJob(ctx, task))
+        training_jobs[task.key] = job
+        out.append((_record(job, "training", [task.key], [task.name]), job))
+        echo(f"  job {job.job_id}: {task.name} ({ranks * nodes} ranks)")
+    if cfg.name == "submitit-local" and training_jobs:
+        # No dependencies between local jobs: train first, then submit the cells.
+        echo(f"  waiting for {len(training_jobs)} training job(s)")
+        for key, job in training_jobs.items():
+            try:
+                job.result()
+            except Exception as exc:  # its cells fail below, naming the training
+                echo(f"  training {key} failed: {str(exc).strip().splitlines()[-1]}")
+        training_jobs = {}
+    groups: dict[tuple[str | None, int], list[CellTask]] = {}
+    for cell in plan.missing:
+        groups.setdefault((cell.training, cell.method_index), []).append(cell)
+    for (training, mi), cells in groups.items():
+        mcfg = cfg.for_method(method_names[mi])
+        per_job = mcfg.cells_per_job
+        if jobs:
+            per_job = max(per_job, math.ceil(len(plan.missing) / jobs))
+        chunks = [cells[i : i + per_job] for i in range(0, len(cells), per_job)]
+        executor = _executor(mcfg, folder)
+        depends = training_jobs.get(training) if training else None
+        if depends is not None:
+            # afterok, and a failed training cancels its cells instead of leaving them queued.
+            extra = {**mcfg.extra, "kill_on_invalid_dep": "yes"}
+            executor.update_parameters(dependency=f"afterok:{depends.job_id}",
+                                       additional_parameters=extra)  # fmt: skip
+        with executor.batch():
+            submitted = [executor.submit(CellsJob(ctx, chunk)) for chunk in chunks]
+        for job, chunk in zip(submitted, chunks, strict=True):
+            record = _record(job, "cells", [c.key for c in chunk], [c.name for c in chunk],
+                             depends.job_id if depends is not None else None)  # fmt: skip
+            out.append((record, job))
+        first = submitted[0].job_id if submitted else "-"
+        after = f", after job {depends.job_id}" if depends is not None else ""
+        echo(f"  {len(submitted)} job(s) from {first}: {len(cells)} cells of "
+             f"{cells[0].label} on {cells[0].dataset}{after}")  # fmt: skip
+    return out
+
+
+def _record(job: Any, kind: str, keys: list[str], names: list[str],
+            depends: str | None = None) -> Submitted:  # fmt: skip
+    return Submitted(str(job.job_id), kind, keys, names, str(job.paths.stdout),
+                     str(job.paths.stderr), depends)  # fmt: skip
+
+
+def write_manifest(path: Path, launcher: str, jobs: list[Submitted]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        stamp = time.strftime("%Y-%m-%dT%H:%M:%S")
+        for job in jobs:
+            f.write(json.dumps({"submitted": stamp, "launcher": launcher, **asdict(job)}) + "\n")
+
+
+def read_manifest(path: Path) -> list[dict[str, Any]]:
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:  # a line cut by a kill: the jobs before it still count
+            continue
+    return out
+
+
+def wait_for(jobs: list[Any], echo: Callable[[str], None], poll: float = 2.0) -> int:
+    """Wait for submitit jobs; the number that failed (each printed with its log).
+
+    A SLURM job has ended when it left the queue (``squeue``): this needs no accounting database
+    (``sacct``, which submitit's own watcher asks, is missing on many small clusters)."""
+    failed = 0
+    pending = list(jobs)
+    while pending:
+        # Local jobs answer done() themselves: ask SLURM only when some job is SLURM's.
+        local = all(type(job).__name__ == "LocalJob" for job in pending)
+        queue = {} if local else _queue()
+        still = []
+        for job in pending:
+            if type(job).__name__ == "LocalJob":
+                running = not job.done()
+            else:
+                running = (_in_queue(str(job.job_id), queue)
+                           and not job.paths.result_pickle.exists())  # fmt: skip
+            if running:
+                still.append(job)
+                continue
+            error = _job_error(job)
+            if error:
+                failed += 1
+                echo(f"  job {job.job_id} failed: {error}; log: {job.paths.stderr}")
+        pending = still
+        if pending:
+            time.sleep(poll)
+    return failed
+
+
+def _in_queue(jid: str, queue: dict[str, str]) -> bool:
+    return _job_state({"job_id": jid, "launcher": "slurm"}, queue) != "ended"
+
+
+def _job_error(job: Any) -> str | None:
+    """Why an ended job failed, or None if it succeeded."""
+    if not job.paths.result_pickle.exists():
+        return "ended without a result (cancelled, killed, out of memory or out of time)"
+    try:
+        job.results()  # every task's result (a training job has one task per rank)
+    except Exception as exc:
+        lines = [ln for ln in str(exc).strip().splitlines() if ln.strip()]
+        return lines[-1] if lines else repr(exc)
+    return None
+
+
+def per_job_stores(settings: Settings) -> list[Path]:
+    return sorted((settings.artifact_root.parent / "stores").glob("job-*.db"))
+
+
+def merge_job_stores(settings: Settings, echo: Callable[[str], None]) -> None:
+    """Import the finished runs of the per-job stores into the main store (idempotent)."""
+    from shapebench.store.merge import merge_stores
+
+    stores = per_job_stores(settings)
+    if stores:
+        report = merge_stores([str(s) for s in stores], settings.tracking_uri, lambda _: None)
+        echo(f"merged {len(stores)} per-job stores: {report.line()}")
+
+
+# -------------------------------------------------------------------------------------- status
+
+
+def _queue() -> dict[str, str]:
+    """SLURM's queue (job id -> state), empty where there is no ``squeue``."""
+    try:
+        out = subprocess.run(["squeue", "-h", "-o", "%i %T"], capture_output=True, text=True,
+                             timeout=30, check=True).stdout  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        return {}
+    states = {}
+    for line in out.splitlines():
+        if " " in line:
+            jid, state = line.split(None, 1)
+            states[jid] = state.lower()
+    return states
+
+
+def _job_state(job: dict[str, Any], queue: dict[str, str]) -> str:
+    jid = job["job_id"]
+    if job["launcher"] == "submitit-local":
+        try:
+            os.kill(int(jid), 0)
+            return "running"
+        except (ValueError, OSError):
+            return "ended"
+    if jid in queue:
+        return queue[jid]
+    base, _, task = jid.partition("_")
+    for qid, state in queue.items():  # a pending array shows as 123_[4-7%2]
+        if qid.startswith(f"{base}_[") and task:
+            return state
+    return "ended"
+
+
+@dataclass
+class CellStatus:
+    cell: CellTask
+    state: str  # finished, running, queued, failed, not submitted
+    job: dict[str, Any] | None = None
+
+
+def sweep_status(plan: SweepPlan, settings: Settings, manifest: list[dict[str, Any]]) -> list[
+        CellStatus]:  # fmt: skip
+    """Each cell's state from the store (finished), its claim lock (running), and the last job
+    it was submitted in (queued, or failed when that job ended without finishing it)."""
+    from shapebench.store.locks import try_lock
+    from shapebench.store.tracking import cell_lock_path
+
+    last_job: dict[str, dict[str, Any]] = {}
+    for job in manifest:
+        for key in job["keys"]:
+            last_job[key] = job
+    queue = _queue()
+    out = []
+    for cell in plan.cells:
+        job = last_job.get(cell.key)
+        if cell.key in plan.finished:
+            out.append(CellStatus(cell, "finished", job))
+            continue
+        lock = try_lock(cell_lock_path(settings, cell.key))
+        if lock is None:
+            out.append(CellStatus(cell, "running", job))
+            continue
+        lock.release()
+        if job is None:
+            out.append(CellStatus(cell, "not submitted"))
+            continue
+        state = _job_state(job, queue)
+        out.append(CellStatus(cell, "failed" if state == "ended" else state, job))
+    return out
+
+
+def print_status(statuses: list[CellStatus], plan: SweepPlan,
+                 echo: Callable[[str], None]) -> None:  # fmt: skip
+    counts: dict[str, int] = {}
+    for s in statuses:
+        counts[s.state] = counts.get(s.state, 0) + 1
+    order = ["finished", "running", "pending", "queued", "failed", "not submitted"]
+    shown = [f"{counts[k]} {k}" for k in order if k in counts]
+    shown += [f"{v} {k}" for k, v in counts.items() if k not in order]
+    echo(f"{len(statuses)} cells: " + ", ".join(shown))
+    if plan.trainings:
+        echo(f"{len(plan.trainings)} trainings missing: "
+             + ", ".join(t.name for t in plan.trainings))  # fmt: skip
+    for s in statuses:
+        if s.state == "failed" and s.job is not None:
+            echo(f"  failed: {s.cell.name}: job {s.job['job_id']}, log {s.job['stderr']}")
+        elif s.state not in ("finished", "not submitted"):
+            jid = s.job["job_id"] if s.job else "-"
+            echo(f"  {s.state}: {s.cell.name} (job {jid})")
+    for error in plan.errors:
+        echo(f"  cannot run: {error}")
+
+
+# ------------------------------------------------------------------------------------- prepare
+
+
+class PrepareJob:
+    """One array task of ``prepare --launcher slurm``: every ``count``-th object from ``index``."""
+
+    def __init__(self, req: Any, settings: Settings, index: int, count: int, jobs: int) -> None:
+        self.req = req
+        self.settings = settings
+        self.shard = (index, count)
+        self.jobs = jobs
+
+    def __call__(self) -> list[str]:
+        from shapebench.evaluate.prepare import prepare_request
+
+        reports = prepare_request(self.req, self.settings, self.jobs, True, self.shard)
+        lines = []
+        for report in reports:
+            lines.append(report.summary())
+            lines += [f"  failed: {f.ref.id}: {f.reason}" for f in report.failures]
+        return lines
+
+    def checkpoint(self) -> Any:
+        """Pre-empted: requeued; the objects already cached are read back, not rebuilt."""
+        import submitit
+
+        return submitit.helpers.DelayedSubmission(self)
+
+
+def prepare_on_cluster(req: Any, settings: Settings, launcher: str, shards: int, jobs: int,
+                       overrides: dict[str, Any], echo: Callable[[str], None]) -> int:  # fmt: skip
+    """Prepare ``req`` as an array of ``shards`` jobs and wait for them; the number that failed."""
+    if shards < 1:
+        raise ShapebenchError(f"--shards must be at least 1, got {shards}")
+    cfg = launcher_config({}, overrides, launcher)
+    folder = settings.artifact_root.parent / "logs" / "submitit" / f"prepare-{req.dataset}"
+    folder.mkdir(parents=True, exist_ok=True)
+    executor = _executor(cfg, folder)
+    with executor.batch():
+        submitted = [executor.submit(PrepareJob(req, settings, i, shards, jobs))
+                     for i in range(shards)]  # fmt: skip
+    echo(f"{shards} prepare jobs from {submitted[0].job_id}; logs under {folder}")
+    failed = wait_for(submitted, echo)
+    for job in submitted:
+        if job.paths.result_pickle.exists() and not _job_error(job):
+            for line in job.results()[0]:
+                echo(f"[{job.job_id}] {line}")
+    return failed

@@ -1,0 +1,83 @@
+"""Running a sweep's cells in several worker processes on this machine (``--launcher local``).
+
+Each worker is the same ``shapebench sweep`` command run inline: workers coordinate through the
+locks every run already takes (:mod:`shapebench.store.locks`): a cell is computed by the first
+worker
+that claims it and read back by the others, a checkpoint key is trained once while the others
+wait for it. Worker ``i`` visits the sweep's methods starting from the ``i``-th, so workers start
+on different methods instead of queueing behind one training. Torch gets ``cores // N`` threads
+per worker (``OMP_NUM_THREADS``), so N workers do not oversubscribe the machine.
+
+Nothing here is a scheduler: killing a worker loses at most its cell in progress (its lock is
+released with it), and rerunning the sweep computes what is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+#: Options of ``sweep`` that choose the launcher: stripped from the workers' command line.
+LAUNCHER_FLAGS = {"--launcher": True, "--jobs": True, "-j": True, "--slurm": True}
+
+
+def worker_argv(argv: list[str], index: int) -> list[str]:
+    """The sweep's command line for worker ``index``: launcher options replaced by ``--launcher
+    inline --worker index`` (``argv`` without the program name)."""
+    out: list[str] = []
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+            continue
+        name = arg.split("=", 1)[0]
+        if name in LAUNCHER_FLAGS or (arg.startswith("-j") and arg[2:].isdigit()):
+            skip = "=" not in arg and name in LAUNCHER_FLAGS
+            continue
+        out.append(arg)
+    return out + ["--launcher", "inline", "--worker", str(index)]
+
+
+def threads_per_worker(jobs: int) -> int:
+    return max(1, (os.cpu_count() or 1) // max(jobs, 1))
+
+
+def run_local(argv: list[str], jobs: int, log_dir: Path, echo: Callable[[str], None]) -> int:
+    """Run ``jobs`` workers of the sweep whose command line is ``argv``; the number of workers
+    that failed. Ctrl-C stops them (each saves its training checkpoint, as on Ctrl-C)."""
+    log_dir.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    env = dict(os.environ)
+    threads = str(threads_per_worker(jobs))
+    env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, PYTHONSAFEPATH="1")
+    procs: list[tuple[subprocess.Popen, Path]] = []
+    for i in range(jobs):
+        log = log_dir / f"sweep-{stamp}-worker{i}.log"
+        with open(log, "w") as out:
+            cmd = [sys.executable, "-m", "shapebench", "sweep", *worker_argv(argv, i)]
+            procs.append((subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT),
+                          log))  # fmt: skip
+    echo(f"{jobs} workers, {threads} torch threads each; logs: {log_dir}/sweep-{stamp}-worker*.log")
+    try:
+        codes = [p.wait() for p, _ in procs]
+    except BaseException:
+        for p, _ in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p, _ in procs:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        raise
+    failed = 0
+    for (_, log), code in zip(procs, codes, strict=True):
+        if code not in (0, 1):  # 1: some cell had every object fail, reported by the summary
+            failed += 1
+            echo(f"worker exited with status {code}: see {log}")
+    return failed

@@ -1,0 +1,244 @@
+"""``shapebench sweep``: a YAML file of methods x datasets x splits x context sizes x seeds.
+
+Each (method, dataset) pair is one ``shapebench run``; its cells are skipped when finished, so a
+sweep interrupted by Ctrl-C or ``kill -9`` completes the rest when started again. Trainable
+methods train in a process of their own (see :mod:`shapebench.train.training`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from shapebench.api.errors import ConfigError, ShapebenchError
+from shapebench.api.method import TrainerOptions
+from shapebench.api.protocol import DEFAULT_FRAME, Protocol
+from shapebench.config import Settings, read_yaml
+from shapebench.evaluate.orchestrate import EvalOutcome, EvalRequest, evaluate
+from shapebench.registry.discovery import get_registry
+from shapebench.store.tracking import Tracker
+
+
+@dataclass
+class Entry:
+    name: str
+    options: dict[str, Any] = field(default_factory=dict)
+    data_root: str | None = None
+    label: str | None = None
+
+
+@dataclass
+class SweepSpec:
+    name: str
+    methods: list[Entry] | str
+    datasets: list[Entry]
+    splits: list[str] | None
+    contexts: list[int]
+    seeds: list[int]
+    profile: str | None = None
+    metrics: list[str] | None = None
+    protocol: Protocol = field(default_factory=Protocol)
+    #: The ``launcher:`` block, read by :func:`shapebench.sweeps.cluster.launcher_config`.
+    launcher: dict[str, Any] = field(default_factory=dict)
+
+
+def _entries(value: Any, key: str, path: Path) -> list[Entry]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not value:
+        raise ConfigError(f"{path}: '{key}' must be a non-empty list")
+    out = []
+    for item in value:
+        if isinstance(item, str):
+            out.append(Entry(item))
+        elif isinstance(item, dict) and "name" in item:
+            out.append(Entry(item["name"], dict(item.get("options") or {}),
+                             item.get("data_root"), item.get("label")))  # fmt: skip
+        else:
+            raise ConfigError(f"{path}: each of '{key}' is a name or {{name: ..., options: ...}}")
+    return out
+
+
+def load_sweep(path: Path) -> SweepSpec:
+    data = read_yaml(path)
+    unknown = set(data) - {
+        "name",
+        "profile",
+        "methods",
+        "datasets",
+        "splits",
+        "contexts",
+        "seeds",
+        "metrics",
+        "frame",
+        "context_normals",
+        "launcher",
+    }
+    if unknown:
+        raise ConfigError(f"{path}: unknown keys {sorted(unknown)}")
+    for key in ("methods", "datasets"):
+        if key not in data:
+            raise ConfigError(f"{path}: '{key}' is required")
+    methods = (
+        data["methods"] if data["methods"] == "all" else _entries(data["methods"], "methods", path)
+    )
+    contexts = data.get("contexts", [50, 100, 300, 1000])
+    seeds = data.get("seeds", [0])
+    if not all(isinstance(c, int) for c in contexts) or not all(isinstance(s, int) for s in seeds):
+        raise ConfigError(f"{path}: 'contexts' and 'seeds' must be lists of integers")
+    return SweepSpec(
+        name=data.get("name", path.stem),
+        methods=methods,
+        datasets=_entries(data["datasets"], "datasets", path),
+        splits=data.get("splits"),
+        contexts=contexts,
+        seeds=seeds,
+        profile=data.get("profile"),
+        metrics=data.get("metrics"),
+        protocol=Protocol(
+            context_normals=bool(data.get("context_normals", False)),
+            frame=data.get("frame", DEFAULT_FRAME),
+        ),
+        launcher=_launcher_block(data.get("launcher"), path),
+    )
+
+
+def _launcher_block(value: Any, path: Path) -> dict[str, Any]:
+    if value is None:
+        return {}
+    if isinstance(value, str):
+        return {"name": value}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{path}: 'launcher' is a name or a mapping like "
+                          "{name: slurm, partition: gpu, time: 120}")  # fmt: skip
+    return dict(value)
+
+
+def sweep_methods(spec: SweepSpec) -> list[Entry]:
+    """The sweep's method entries, ``methods: all`` expanded; unknown names fail here, before
+    any work, not halfway through the sweep."""
+    registry = get_registry()
+    methods = spec.methods
+    if methods == "all":
+        methods = [Entry(n) for n in registry.names("method")]
+    for m in methods:
+        registry.get("method", m.name)
+    for ds in spec.datasets:
+        registry.get("dataset", ds.name)
+    return list(methods)
+
+
+def request(spec: SweepSpec, method: Entry, dataset: Entry, force: bool = False,
+            quiet: bool = False, retrain: bool = False, **narrow: Any) -> EvalRequest:  # fmt: skip
+    """The ``shapebench run`` of one method on one dataset of the sweep; ``narrow`` (splits,
+    contexts, seeds) restricts it to some of its cells, as a cluster job does."""
+    return EvalRequest(
+        method=method.name,
+        dataset=dataset.name,
+        splits=narrow.get("splits", spec.splits),
+        contexts=narrow.get("contexts", spec.contexts),
+        seeds=narrow.get("seeds", spec.seeds),
+        method_opts=method.options,
+        dataset_opts=dataset.options,
+        data_root=dataset.data_root,
+        metrics=spec.metrics,
+        force=force,
+        quiet=quiet,
+        protocol=spec.protocol,
+        label=method.label,
+        retrain=retrain,
+    )
+
+
+def run_sweep(
+    spec: SweepSpec,
+    settings: Settings,
+    force: bool,
+    quiet: bool,
+    trainer_for_seed: Callable[[int], TrainerOptions],
+    on_error: Callable[[str, str, ShapebenchError], None] | None = None,
+    offset: int = 0,
+    retrain: bool = False,
+) -> Iterator[EvalOutcome]:
+    """Evaluate every method on every dataset of ``spec``; ``offset`` rotates the order of the
+    methods (worker ``i`` of a local launcher starts on the ``i``-th method); ``retrain``
+    trains locally where a reference checkpoint is shipped."""
+    methods = sweep_methods(spec)
+    if methods and offset:
+        k = offset % len(methods)
+        methods = methods[k:] + methods[:k]
+    tracker = Tracker(settings)  # so does an unreachable server
+    failures: list[str] = []
+    for ds in spec.datasets:
+        for m in methods:
+            try:
+                yield evaluate(request(spec, m, ds, force, quiet, retrain), settings,
+                               trainer_for_seed, tracker)  # fmt: skip
+            except ShapebenchError as exc:  # one method failing must not stop the others
+                failures.append(f"{m.name} on {ds.name}: {exc.message}")
+                if on_error is not None:
+                    on_error(m.name, ds.name, exc)
+    if failures:
+        raise ShapebenchError(
+            f"{len(failures)} of the sweep's method x dataset runs failed: " + "; ".join(failures),
+            "the other cells finished and are kept; fix the cause and rerun the same command",
+        )
+
+
+def sweep_size(spec: SweepSpec, settings: Settings) -> int:
+    """How many cells the sweep has (methods x each dataset's splits x sizes x seeds), for its
+    progress line; a dataset that cannot be resolved counts 0 (its error comes with its run)."""
+    from shapebench.registry.resolve import resolve_dataset
+
+    methods = sweep_methods(spec)
+    total = 0
+    for ds in spec.datasets:
+        try:
+            dataset = resolve_dataset(get_registry(), ds.name, settings, ds.data_root, ds.options)
+        except ShapebenchError:
+            continue
+        splits = spec.splits or list(dataset.eval_splits)
+        total += len(methods) * len(splits) * len(set(spec.contexts)) * len(spec.seeds)
+    return total
+
+
+class SweepProgress:
+    """``12/48 cells (4 already done), 3m12s elapsed (1m02s training), about 9m left`` after each
+    run of a sweep. The estimate extrapolates the evaluation time per cell computed so far; time
+    spent training is left out of it (one training can take longer than all the cells it
+    serves), so trainings still to come are not in the estimate either."""
+
+    def __init__(self, total: int) -> None:
+        import time
+
+        self.total = total
+        self.done = self.cached = 0
+        self.training = 0.0
+        self.start = time.monotonic()
+
+    def update(self, outcome: EvalOutcome) -> str:
+        import time
+
+        self.done += len(outcome.cells)
+        self.cached += sum(1 for c in outcome.cells if c.skipped)
+        self.training += outcome.train_seconds
+        elapsed = time.monotonic() - self.start
+        evaluating = max(elapsed - self.training, 0.0)
+        computed = self.done - self.cached
+        left = max(self.total - self.done, 0)
+        eta = f", about {_duration(evaluating / computed * left)} left" if computed and left else ""
+        already = f" ({self.cached} already done)" if self.cached else ""
+        training = f" ({_duration(self.training)} training)" if self.training >= 1 else ""
+        return (f"sweep progress: {self.done}/{self.total} cells{already}, "
+                f"{_duration(elapsed)} elapsed{training}{eta}")  # fmt: skip
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"

@@ -1,0 +1,133 @@
+"""Reference checkpoints: trainings shipped with shapebench, used instead of training locally.
+
+A trainable method's checkpoint is keyed by everything that changes its weights
+(:func:`shapebench.train.training.checkpoint_key`: options, code, training data, epochs, precision,
+devices, seed). For the built-in synthetic benchmark at the default profile, shapebench ships the
+checkpoints its maintainers trained with ``scripts/reference_checkpoints.py``, one folder per key::
+
+    shapebench/reference_checkpoints/<family>/<key>/model.ckpt       weights (no optimiser state)
+    shapebench/reference_checkpoints/<family>/<key>/reference.json   how it was made
+
+``reference.json`` records the key, the exact ``shapebench train`` command, the package versions,
+the machine, the wall time and the final loss terms. When ``run`` or ``sweep`` needs the
+checkpoint of a key that has a reference folder, the reference is copied into the workspace (and
+logged as a training run tagged ``shapebench.reference``) instead of training; a key with no
+reference folder (other options, edited code, another dataset or seed) trains as before.
+``--retrain`` trains locally even when a reference exists.
+
+Weights trained on another machine differ from a local training of the same key (floating-point
+results depend on the hardware), so the origin of the weights is part of a cell's key and of its
+leaderboard row: ``reference:<sha256 of the file>``, or nothing for a local training.
+``$SHAPEBENCH_REFERENCE_CHECKPOINTS`` names another reference folder (``none`` turns them off).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ENV = "SHAPEBENCH_REFERENCE_CHECKPOINTS"
+CHECKPOINT_FILE = "model.ckpt"
+INFO_FILE = "reference.json"
+#: Lightning's checkpoint entries a reference keeps: enough to rebuild and verify the module
+#: (:func:`shapebench.train.checkpoints.build_module`), not to resume its training.
+KEPT_ENTRIES = ("state_dict", "hyper_parameters", "shapebench", "pytorch-lightning_version")
+
+
+@dataclass(frozen=True)
+class Reference:
+    """One shipped checkpoint: its folder, file, description and the file's digest."""
+
+    folder: Path
+    info: dict[str, Any]
+
+    @property
+    def checkpoint(self) -> Path:
+        return self.folder / CHECKPOINT_FILE
+
+    @property
+    def origin(self) -> str:
+        """What cell keys and leaderboard rows record about these weights."""
+        return f"reference:{self.info['sha256'][:16]}"
+
+
+#: The references shipped inside the package.
+SHIPPED = Path(__file__).resolve().parents[1] / "reference_checkpoints"
+
+
+def root() -> Path | None:
+    """The folder of reference checkpoints: ``$SHAPEBENCH_REFERENCE_CHECKPOINTS``, else the one
+    inside the package; None when the variable says ``none``."""
+    given = os.environ.get(ENV, "").strip()
+    if given.lower() == "none":
+        return None
+    return Path(given) if given else SHIPPED
+
+
+def find(family: str, key: str) -> Reference | None:
+    """The reference checkpoint of ``family`` (a method's checkpoint family) for ``key``."""
+    base = root()
+    if base is None:
+        return None
+    folder = base / family / key
+    try:
+        info = json.loads((folder / INFO_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(info, dict) or info.get("key") != key or "sha256" not in info:
+        return None
+    if not (folder / CHECKPOINT_FILE).is_file():
+        return None
+    return Reference(folder, info)
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def install(ref: Reference, workdir: Path) -> Path:
+    """Copy ``ref``'s weights into a workspace's checkpoint folder, after checking that the file
+    is the one described (digest) and holds its key; returns the copied file."""
+    from shapebench.api.errors import ShapebenchError
+    from shapebench.train.checkpoints import verify_checkpoint
+
+    digest = file_sha256(ref.checkpoint)
+    if digest != ref.info["sha256"]:
+        raise ShapebenchError(
+            f"reference checkpoint {ref.checkpoint} does not match its {INFO_FILE} "
+            f"(sha256 {digest[:16]}, expected {ref.info['sha256'][:16]})",
+            "reinstall shapebench, or pass --retrain to train this method locally",
+        )
+    verify_checkpoint(ref.checkpoint, ref.info["key"])
+    workdir.mkdir(parents=True, exist_ok=True)
+    target = workdir / CHECKPOINT_FILE
+    tmp = target.with_name(target.name + ".tmp")
+    shutil.copyfile(ref.checkpoint, tmp)
+    tmp.replace(target)
+    return target
+
+
+def export(last_ckpt: Path, folder: Path, info: dict[str, Any]) -> Reference:
+    """Write a reference folder from a finished training's ``last.ckpt``: the weights without
+    the optimiser and loop state, and ``info`` completed with the file's digest."""
+    import torch
+
+    from shapebench.train.checkpoints import load_safely
+
+    checkpoint = load_safely(last_ckpt)
+    kept = {k: checkpoint[k] for k in KEPT_ENTRIES if k in checkpoint}
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.save(kept, folder / CHECKPOINT_FILE)
+    info = {**info, "sha256": file_sha256(folder / CHECKPOINT_FILE),
+            "bytes": (folder / CHECKPOINT_FILE).stat().st_size}  # fmt: skip
+    (folder / INFO_FILE).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
+    return Reference(folder, info)

@@ -1,0 +1,458 @@
+"""Training trainable methods, one process per training.
+
+Lightning's DDP supports one ``Trainer.fit`` per process (its subprocess launcher re-runs the
+command line for every rank), so ``shapebench run`` and ``sweep`` never call ``fit`` themselves:
+when a method trains and no checkpoint exists for its key (:func:`checkpoint_key`), they start
+``python -m shapebench train ...`` as a child process and wait for it. The checkpoint directory
+holds ``done.json`` once training finished; an interrupted training leaves its last epoch-end
+checkpoint there and the next training of that key resumes from it.
+
+One training per key at a time: the training process holds a lock (:mod:`shapebench.store.locks`)
+beside the key's folder; a second process for the same key waits for it, then finds
+``done.json`` and trains nothing. A child training dies with the process that started it (a
+watchdog thread, :func:`watch_parent`), so a killed ``run`` or ``sweep`` leaves no orphan.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import warnings
+from dataclasses import asdict
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from shapebench.api.dataset import Dataset
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.method import TrainerOptions, TrainingContext
+from shapebench.boards.cost import REFERENCE_TAG
+from shapebench.config import Settings
+from shapebench.hashing import stable_hash
+from shapebench.registry.resolve import ResolvedMethod
+from shapebench.store.tracking import TRAINING_KIND, Tracker, flatten, training_experiment_name
+
+if TYPE_CHECKING:
+    from shapebench.train.references import Reference
+
+RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
+#: The pid of the process that started this training and waits for it (see watch_parent).
+PARENT_ENV = "SHAPEBENCH_PARENT_PID"
+#: Suffixes of PyTorch checkpoints, which read_done checks (checksums, key) before reuse.
+TORCH_CHECKPOINTS = (".ckpt", ".pt", ".pth")
+#: How long a child training gets to stop cleanly after its parent was interrupted.
+CHILD_GRACE_SECONDS = 30
+
+
+def trainer_options(settings: Settings, seed: int, **given: Any) -> TrainerOptions:
+    """The profile's ``trainer:`` settings, overridden by the given (command-line) ones."""
+    from dataclasses import fields
+
+    values = dict(settings.profile.get("trainer") or {})
+    values.update({k: v for k, v in given.items() if v is not None})
+    known = {f.name for f in fields(TrainerOptions)}
+    values = {k: v for k, v in values.items() if k in known}
+    values["seed"] = seed
+    return TrainerOptions(**values)
+
+
+def profile_trainer(settings: Settings, seed: int) -> TrainerOptions:
+    """The trainer settings a run gets with no command-line overrides."""
+    return trainer_options(settings, seed)
+
+
+def world_size(trainer: TrainerOptions) -> int:
+    """How many processes train together (devices x nodes): with the per-device batch, it sets
+    the effective batch size, so it changes the trained weights."""
+    devices = str(trainer.devices).strip()
+    if devices.isdigit():
+        count = int(devices)
+    elif "," in devices or devices.startswith("["):
+        count = len([d for d in devices.strip("[]").split(",") if d.strip()])
+    elif trainer.accelerator == "cpu":
+        count = 1  # Lightning's "auto" devices on a CPU: one process
+    else:
+        import torch
+
+        count = max(torch.cuda.device_count(), 1) if torch.cuda.is_available() else 1
+    return max(count, 1) * max(int(trainer.num_nodes or 1), 1)
+
+
+def training_identity(method: ResolvedMethod, trainer: TrainerOptions) -> dict[str, Any]:
+    """The trainer settings that change the trained weights; the accelerator does not count
+    (a checkpoint trained on a GPU serves a CPU evaluation)."""
+    return {
+        "epochs": trainer.max_epochs or getattr(method.options, "epochs", None),
+        "precision": trainer.precision,
+        "world_size": world_size(trainer),
+        "seed": trainer.seed,
+    }
+
+
+def apply_trainer(method: ResolvedMethod, trainer: TrainerOptions) -> ResolvedMethod:
+    """``--max-epochs`` becomes the method's ``epochs`` option when it has one, so the run's
+    params, its leaderboard label and its key all show the epochs really trained."""
+    if trainer.max_epochs and hasattr(method.options, "epochs"):
+        return method.with_options(epochs=trainer.max_epochs)
+    return method
+
+
+def checkpoint_key(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions) -> str:
+    """Everything that changes the trained weights: the method's training options and code, the
+    training data, and the trainer settings of :func:`training_identity` (the seed among them)."""
+    return stable_hash(
+        {
+            "method": method.training_config(),
+            "dataset": dataset.training_fingerprint(),
+            "trainer": training_identity(method, trainer),
+        }
+    )
+
+
+def checkpoint_dir(settings: Settings, method: ResolvedMethod, key: str) -> Path:
+    family = method.cls.checkpoint_family or method.name
+    return settings.artifact_root.parent / "checkpoints" / family / key
+
+
+def _global_rank() -> int:
+    for var in ("RANK", "SLURM_PROCID", "LOCAL_RANK"):
+        if os.environ.get(var, "").isdigit():
+            return int(os.environ[var])
+    return 0
+
+
+def read_done(workdir: Path) -> dict[str, Any] | None:
+    """The record of the finished training in ``workdir``, or None when there is none or it is
+    damaged: a ``done.json`` that does not parse, or whose checkpoint no longer loads or holds
+    another key, is reported and removed, so that the key trains again."""
+    from shapebench.train.checkpoints import CorruptFileWarning, checkpoint_problem
+
+    done = workdir / "done.json"
+    if not done.exists():
+        return None
+    try:
+        record = json.loads(done.read_text())
+        path = Path(record["path"])
+        if path.suffix in TORCH_CHECKPOINTS:
+            problem = checkpoint_problem(path, workdir.name)
+        else:  # a method's own format: only the method can tell whether it is sound
+            problem = None if path.exists() else f"checkpoint {path} no longer exists"
+    except (ValueError, KeyError, TypeError) as exc:
+        problem = f"{done} is damaged ({type(exc).__name__}: {exc})"
+    if problem is None:
+        return record
+    warnings.warn(f"{problem}; training it again", CorruptFileWarning, stacklevel=2)
+    done.unlink(missing_ok=True)
+    (workdir / "last.ckpt").unlink(missing_ok=True)
+    return None
+
+
+def lock_path(workdir: Path) -> Path:
+    """The lock beside a checkpoint key's folder, held while that key trains."""
+    return workdir.with_name(workdir.name + ".lock")
+
+
+def watch_parent() -> None:
+    """Stop this training (SIGTERM, handled like Ctrl-C) when the process that started it dies.
+
+    The parent names itself in ``SHAPEBENCH_PARENT_PID``; a thread polls ``os.getppid()``,
+    which changes when the parent dies (the child is re-parented), even after ``kill -9``. The
+    ranks Lightning launches inherit the variable but have another parent: they are left to
+    Lightning, which stops them with rank 0.
+    """
+    expected = os.environ.get(PARENT_ENV, "")
+    if not expected.isdigit() or os.getppid() != int(expected):
+        return
+
+    def poll() -> None:
+        while os.getppid() == int(expected):
+            time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=poll, name="shapebench-parent-watchdog", daemon=True).start()
+
+
+def train_here(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    trainer: TrainerOptions,
+    settings: Settings,
+    quiet: bool = False,
+    retrain: bool = False,
+) -> dict[str, Any]:
+    """Train in this process (the ``shapebench train`` command); return the checkpoint record.
+
+    Resumes from the key's last epoch-end checkpoint when an earlier training was interrupted;
+    waits for, then reuses, a training of the same key running in another process. A shipped
+    reference checkpoint of the key (:mod:`shapebench.train.references`) is used instead of
+    training unless ``retrain``.
+    """
+    from shapebench.store.locks import wait_lock
+
+    method = apply_trainer(method, trainer)
+    key = checkpoint_key(method, dataset, trainer)
+    workdir = checkpoint_dir(settings, method, key)
+    workdir.mkdir(parents=True, exist_ok=True)
+    run_id = os.environ.get(RUN_ID_ENV)
+    lead = _global_rank() == 0 and not run_id  # not a rank Lightning launched
+    lock = None
+    if lead:
+        watch_parent()
+
+        def waiting(holder: str) -> None:
+            print(f"waiting for {holder}, which is training {method.name} on {dataset.name} "
+                  f"(checkpoint key {key})", file=sys.stderr)  # fmt: skip
+
+        lock = wait_lock(lock_path(workdir), waiting)
+    try:
+        if lead:
+            record = _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain)
+            if record is not None:  # trained by the process we waited for, or shipped
+                return record
+        return _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id):
+    from shapebench.train.lightning_fit import LAST, TrainingInterrupted
+
+    tracker = None
+    if _global_rank() == 0 and not run_id:
+        tracker = Tracker(settings)
+        exp = tracker.experiment_id(training_experiment_name(dataset.name))
+        tracker.describe_experiment(
+            exp,
+            f"shapebench trainings on {dataset.name}: one run per checkpoint key (method "
+            "options and code, training data, epochs, precision, devices, seed), with its loss "
+            "curves; the evaluations that use a checkpoint link to its run in their description.",
+        )
+        # We hold the key's lock: a RUNNING training of this key was left by a killed process.
+        tracker.abandon_stale(exp, key, tag="checkpoint_key")
+        tags = {
+            "shapebench.kind": TRAINING_KIND,
+            "method": method.name,
+            "dataset": dataset.name,
+            "checkpoint_key": key,
+        }
+        if (workdir / LAST).exists():
+            tags["resumed"] = "true"
+        label = method.name + (f" epochs={method.options.epochs}"
+                               if hasattr(method.options, "epochs") else "")  # fmt: skip
+        run_id = tracker.start_run(exp, f"train {label} on {dataset.name} seed={trainer.seed}",
+                                   tags)  # fmt: skip
+        tracker.log_params(run_id, _training_params(method, dataset, trainer))
+        os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
+    instance = method.instantiate()
+    try:
+        path = instance.fit(
+            TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id, quiet)
+        )
+    except BaseException as exc:
+        if tracker is not None:
+            interrupted = isinstance(exc, (TrainingInterrupted, KeyboardInterrupt))
+            tracker.end(run_id, "KILLED" if interrupted else "FAILED")
+        raise
+    record = {"key": key, "path": str(path), "run_id": run_id}  # weights: local (no "weights")
+    if _global_rank() == 0:
+        tmp = workdir / "done.json.tmp"
+        tmp.write_text(json.dumps(record))
+        tmp.replace(workdir / "done.json")
+        if tracker is not None:
+            tracker.end(run_id)
+    return record
+
+
+def _training_params(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions):
+    return flatten("", {"method": method.config(), "trainer": asdict(trainer),
+                        "training": training_identity(method, trainer),
+                        "dataset": dataset.config()})  # fmt: skip
+
+
+def find_reference(method: ResolvedMethod, key: str) -> Reference | None:
+    """The shipped reference checkpoint of ``method`` for ``key``, or None."""
+    from shapebench.train.references import find
+
+    return find(method.cls.checkpoint_family or method.name, key)
+
+
+def weights_origin(
+    settings: Settings, method: ResolvedMethod, key: str, retrain: bool, reference: Reference | None
+) -> str | None:
+    """Where the weights of ``key`` come (or will come) from, as cells and rows record it:
+    ``reference:<digest>`` for a shipped reference checkpoint, None for a local training.
+    Read before any training, from the workspace's ``done.json``, else from ``reference`` (what
+    :func:`find_reference` gave for ``key``, or None)."""
+    if retrain:
+        return None
+    try:
+        record = json.loads((checkpoint_dir(settings, method, key) / "done.json").read_text())
+        return record.get("weights") if isinstance(record, dict) else None
+    except (OSError, ValueError):
+        pass
+    return None if reference is None else reference.origin
+
+
+def _reusable(record: dict[str, Any] | None, workdir: Path, retrain: bool) -> dict[str, Any] | None:
+    """``record`` unless ``retrain`` asks to replace reference weights by a local training (the
+    reference's copy is then removed)."""
+    if record is not None and retrain and record.get("weights"):
+        (workdir / "done.json").unlink(missing_ok=True)
+        Path(record["path"]).unlink(missing_ok=True)
+        return None
+    return record
+
+
+def _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain):
+    """With the key's lock held: the record of a finished training (or install) of ``key``, else
+    its shipped reference checkpoint installed (unless ``retrain``), else None (train it)."""
+    record = _reusable(read_done(workdir), workdir, retrain)
+    if record is not None:
+        return record
+    reference = None if retrain else find_reference(method, key)
+    if reference is None:
+        return None
+    return _use_reference(reference, method, dataset, trainer, settings, key, workdir)
+
+
+def _use_reference(reference, method, dataset, trainer, settings, key, workdir) -> dict[str, Any]:
+    """Install ``reference`` as the checkpoint of ``key`` and log it as a training run (its
+    cost and loss terms are those of the reference training); the caller holds the key's lock."""
+    from shapebench.train.references import install
+
+    info = reference.info
+    summary = info.get("summary") or {}
+    print(f"{method.name}: using the reference checkpoint for key {key} ({reference.folder}; "
+          f"trained with '{info.get('command', '?')}' in {summary.get('wall_seconds', 0):.0f} s "
+          f"on {summary.get('device', '?')}); --retrain trains it here instead",
+          file=sys.stderr, flush=True)  # fmt: skip
+    path = install(reference, workdir)
+    tracker = Tracker(settings)
+    exp = tracker.experiment_id(training_experiment_name(dataset.name))
+    tags = {"shapebench.kind": TRAINING_KIND, "method": method.name, "dataset": dataset.name,
+            "checkpoint_key": key, REFERENCE_TAG: reference.origin,
+            "training_device": str(summary.get("device", ""))}  # fmt: skip
+    run_id = tracker.start_run(exp, f"reference {method.name} on {dataset.name} "
+                                    f"seed={trainer.seed}", tags)  # fmt: skip
+    tracker.log_params(run_id, _training_params(method, dataset, trainer))
+    metrics = {f"summary/{k}": float(summary[k])
+               for k in ("wall_seconds", "device_hours", "epochs", "optimizer_steps")
+               if isinstance(summary.get(k), (int, float))}  # fmt: skip
+    metrics.update({f"summary/final_{k.removeprefix('train/')}": float(v)
+                    for k, v in (summary.get("final") or {}).items()})  # fmt: skip
+    tracker.log_metrics(run_id, metrics, step=int(summary.get("optimizer_steps", 0)))
+    described = json.dumps(info, indent=1, sort_keys=True)
+    tracker.client.set_tag(run_id, "mlflow.note.content",
+                           "Reference checkpoint shipped with shapebench, not trained here."
+                           f"\n\n```json\n{described}\n```")  # fmt: skip
+    tracker.end(run_id)
+    record = {"key": key, "path": str(path), "run_id": run_id, "weights": reference.origin}
+    tmp = workdir / "done.json.tmp"
+    tmp.write_text(json.dumps(record))
+    tmp.replace(workdir / "done.json")
+    return record
+
+
+def ensure_checkpoint(
+    method: ResolvedMethod,
+    dataset: Dataset,
+    trainer: TrainerOptions,
+    settings: Settings,
+    data_root: Path | None,
+    quiet: bool = False,
+    retrain: bool = False,
+) -> dict[str, Any]:
+    """Reuse the checkpoint of an identical training, else the shipped reference checkpoint of
+    its key (unless ``retrain``), else train in a child process."""
+    from shapebench.store.locks import wait_lock
+
+    method = apply_trainer(method, trainer)
+    key = checkpoint_key(method, dataset, trainer)
+    workdir = checkpoint_dir(settings, method, key)
+    record = _reusable(read_done(workdir), workdir, retrain)
+    if record is not None:
+        return record
+    if not retrain and find_reference(method, key) is not None:  # installed here, no child
+        workdir.mkdir(parents=True, exist_ok=True)
+        lock = wait_lock(lock_path(workdir), lambda holder: None)
+        try:  # another process may have installed (or trained) it while we waited
+            record = _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain)
+        finally:
+            lock.release()
+        if record is not None:
+            return record
+    cmd = [
+        sys.executable,
+        "-m",
+        "shapebench",
+        "train",
+        "--method",
+        method.name,
+        "--dataset",
+        dataset.name,
+        "--profile",
+        settings.profile_name,
+        "--tracking-uri",
+        settings.tracking_uri,
+        "--cache-dir",
+        str(settings.cache_dir),
+        "--workspace",
+        str(settings.artifact_root.parent),
+    ]
+    cmd += [a for k, v in asdict(method.options).items() for a in ("-O", f"{k}={json.dumps(v)}")]
+    cmd += [a for k, v in asdict(dataset.options).items() for a in ("-D", f"{k}={json.dumps(v)}")]
+    for k, v in asdict(trainer).items():
+        if v is not None:
+            cmd += [f"--{k.replace('_', '-')}", str(v)]
+    if data_root:
+        cmd += ["--data-root", str(data_root)]
+    if quiet:
+        cmd.append("--quiet")
+    if retrain:
+        cmd.append("--retrain")
+    # Why a (possibly long) training starts now, before its own output.
+    resume = " (resuming from its last checkpoint)" if (workdir / "last.ckpt").exists() else ""
+    print(f"training {method.name} on {dataset.name}: no checkpoint for key {key} in "
+          f"{workdir.parent}{resume}", file=sys.stderr, flush=True)  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != RUN_ID_ENV}
+    # `python -m` would put the working directory first on sys.path: a checkout of shapebench in
+    # it would then train with other code than this process evaluates with (and under another
+    # key). PYTHONSAFEPATH (Python >= 3.11) keeps the child's imports those of this process.
+    env["PYTHONSAFEPATH"] = "1"
+    env[PARENT_ENV] = str(os.getpid())
+    returncode = _wait_child(subprocess.Popen(cmd, env=env))
+    record = read_done(workdir)
+    if returncode == 0 and record is None:
+        raise ShapebenchError(
+            f"training {method.name} on {dataset.name} finished, but not under the checkpoint "
+            f"key {key} this process expects: the training process resolved another "
+            "configuration or imported other code",
+            "run shapebench from a directory that does not hold another copy of shapebench, or "
+            f"train alone: {' '.join(cmd[2:])}",
+        )
+    if returncode != 0 or record is None:
+        raise ShapebenchError(
+            f"training {method.name} on {dataset.name} failed (exit status {returncode})",
+            f"run it alone to see the details: {' '.join(cmd[2:])}",
+        )
+    return record
+
+
+def _wait_child(proc: subprocess.Popen) -> int:
+    """Wait for a child training; when this process is interrupted, give the child time to stop
+    cleanly (it got the same Ctrl-C, or gets SIGTERM here) before killing it."""
+    try:
+        return proc.wait()
+    except BaseException:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=CHILD_GRACE_SECONDS)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        raise
