@@ -40,8 +40,10 @@ def main() -> None:
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     encoder = MSCEncoder(args.latent, args.width, args.layers).to(device).eval()
     decoder = IGRDecoder(args.latent).to(device).eval()
-    print(f"device: {device}, threads: {torch.get_num_threads()}, latent {args.latent}, "
-          f"encoder {args.layers} x {args.width}")  # fmt: skip
+    print(
+        f"device: {device}, threads: {torch.get_num_threads()}, latent {args.latent}, "
+        f"encoder {args.layers} x {args.width}"
+    )
     print(f"{'points':>7} {'encode ms':>10} {'decode ms (same points)':>24}")
     with torch.no_grad():
         for n in (50, 100, 300, 1000):

@@ -111,8 +111,12 @@ def context_of(data: ObjectData, size: int, seed: int) -> Context:
     rng = np.random.default_rng(stable_seed("ladder", data.ref.id, size, seed))
     pts = data.surface_points
     pick = rng.choice(len(pts), size=min(size, len(pts)), replace=False)
-    return Context(data.ref, np.ascontiguousarray(pts[pick], dtype=np.float32), None,
-                   seed=stable_seed("ladder-ctx", data.ref.id, seed))  # fmt: skip
+    return Context(
+        data.ref,
+        np.ascontiguousarray(pts[pick], dtype=np.float32),
+        None,
+        seed=stable_seed("ladder-ctx", data.ref.id, seed),
+    )
 
 
 def chamfer_x1000(completion: Completion | Exception, data: ObjectData, ctx: Context) -> float:
@@ -123,8 +127,9 @@ def chamfer_x1000(completion: Completion | Exception, data: ObjectData, ctx: Con
     return 1000.0 * ChamferL2().compute(completion, data, ctx)
 
 
-def evaluate(method, objects: list[ObjectData], contexts: list[Context],
-             largest: bool = False) -> list[float] | tuple[list[float], list[float]]:  # fmt: skip
+def evaluate(
+    method, objects: list[ObjectData], contexts: list[Context], largest: bool = False
+) -> list[float] | tuple[list[float], list[float]]:
     """chamfer-l2 x 1000 of the method's completion of each context (nan where it failed); with
     ``largest``, also that of the same completions cut to their largest mesh component."""
     out, cut = [], []
@@ -169,8 +174,10 @@ def gauss_scores(objects: list[ObjectData], contexts: list[Context]) -> list[flo
     from shapebench_gauss.method import GaussDensification
 
     gauss = GaussDensification()
-    return [chamfer_x1000(gauss.complete(c, len(d.gt_points)), d, c)
-            for d, c in zip(objects, contexts, strict=True)]  # fmt: skip
+    return [
+        chamfer_x1000(gauss.complete(c, len(d.gt_points)), d, c)
+        for d, c in zip(objects, contexts, strict=True)
+    ]
 
 
 def untrained(method, n_shapes: int, seed: int):
@@ -211,15 +218,24 @@ def run_rung(resolved, dataset: Dataset, rung: str, args, workdir: Path) -> Rung
     summary = json.loads((workdir / rung / "summary.json").read_text())
     method.load_checkpoint(path)
     trained, cut = evaluate(method, objects, contexts, largest=True)
-    return RungResult(rung, len(refs), summary["optimizer_steps"], seconds,
-                      summary["final"].get("train/loss", math.nan), nanmean(initial),
-                      nanmean(trained), nanmean(gauss_scores(objects, contexts)),
-                      sum(map(math.isnan, trained)), nanmean(cut),
-                      nanmean(decode_trained_codes(method, refs, objects, contexts)))  # fmt: skip
+    return RungResult(
+        rung,
+        len(refs),
+        summary["optimizer_steps"],
+        seconds,
+        summary["final"].get("train/loss", math.nan),
+        nanmean(initial),
+        nanmean(trained),
+        nanmean(gauss_scores(objects, contexts)),
+        sum(map(math.isnan, trained)),
+        nanmean(cut),
+        nanmean(decode_trained_codes(method, refs, objects, contexts)),
+    )
 
 
-def decode_trained_codes(method, refs: list[ObjectRef], objects: list[ObjectData],
-                         contexts: list[Context]) -> list[float]:  # fmt: skip
+def decode_trained_codes(
+    method, refs: list[ObjectRef], objects: list[ObjectData], contexts: list[Context]
+) -> list[float]:
     """chamfer-l2 x 1000 of each training object decoded from the code training learned for it
     (nan where it failed; none for a method without per-object codes, or objects that were not
     trained on). A search that starts elsewhere (DeepSDF's codes start far from its z0) can
@@ -259,14 +275,22 @@ def print_table(results: list[RungResult], method: str, largest: bool = False) -
     codes = any(not math.isnan(r.trained_code) for r in results)
     head = f"{'rung':<18} {'objects':>7} {'steps':>6} {'train s':>8} {'final loss':>10} "
     head += f"{'init x1000':>10} {method + ' x1000':>12} {'gauss x1000':>11} {'failed':>6}"
-    print(head + (f" {'largest x1000':>13}" if largest else "")
-          + (f" {'code x1000':>10}" if codes else ""))  # fmt: skip
+    print(
+        head
+        + (f" {'largest x1000':>13}" if largest else "")
+        + (f" {'code x1000':>10}" if codes else "")
+    )
     for r in results:
-        row = (f"{r.rung + ' ' + RUNGS[r.rung]:<18} {r.objects:>7} {r.steps:>6} {r.seconds:>8.1f} "
-               f"{r.final_loss:>10.4g} {r.initial:>10.3f} {r.trained:>12.3f} {r.gauss:>11.3f} "
-               f"{r.failures:>6}")  # fmt: skip
-        print(row + (f" {r.largest:>13.3f}" if largest else "")
-              + (f" {r.trained_code:>10.3f}" if codes else ""))  # fmt: skip
+        row = (
+            f"{r.rung + ' ' + RUNGS[r.rung]:<18} {r.objects:>7} {r.steps:>6} {r.seconds:>8.1f} "
+            f"{r.final_loss:>10.4g} {r.initial:>10.3f} {r.trained:>12.3f} {r.gauss:>11.3f} "
+            f"{r.failures:>6}"
+        )
+        print(
+            row
+            + (f" {r.largest:>13.3f}" if largest else "")
+            + (f" {r.trained_code:>10.3f}" if codes else "")
+        )
 
 
 def main(argv: list[str] | None = None) -> list[RungResult]:
@@ -292,8 +316,11 @@ def main(argv: list[str] | None = None) -> list[RungResult]:
     unknown = [r for r in rungs if r not in RUNGS]
     if unknown:
         raise SystemExit(f"unknown rungs {unknown}; use a, b, c")
-    print(f"ladder: {args.method}, profile {args.profile}, {args.steps} steps per rung, "
-          f"{args.context} context points, seed {args.seed}", file=sys.stderr)  # fmt: skip
+    print(
+        f"ladder: {args.method}, profile {args.profile}, {args.steps} steps per rung, "
+        f"{args.context} context points, seed {args.seed}",
+        file=sys.stderr,
+    )
     results = []
     with tempfile.TemporaryDirectory(prefix="ladder-") as tmp:
         for rung in rungs:

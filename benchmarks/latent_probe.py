@@ -85,19 +85,33 @@ def validation_refs(dataset, per_category: int) -> list[ObjectRef]:
     ]
 
 
-def save_rows(path: Path, rows: list[tuple[str, int, list[float]]],
-              objects: dict[tuple[str, int], list[str]], meta: dict) -> None:  # fmt: skip
+def save_rows(
+    path: Path,
+    rows: list[tuple[str, int, list[float]]],
+    objects: dict[tuple[str, int], list[str]],
+    meta: dict,
+) -> None:
     """Write the rows as JSON (a failed object as null), with the object ids of each row and
     what else fixes its context points (``meta``: seed, data fingerprint)."""
-    out = [{"label": label, "k": k, "objects": objects[(label, k)],
-            "scores": [None if math.isnan(v) else v for v in scores]}
-           for label, k, scores in rows]  # fmt: skip
+    out = [
+        {
+            "label": label,
+            "k": k,
+            "objects": objects[(label, k)],
+            "scores": [None if math.isnan(v) else v for v in scores],
+        }
+        for label, k, scores in rows
+    ]
     path.write_text(json.dumps({**meta, "rows": out}, indent=1, allow_nan=False))
 
 
-def compare_saved(rows: list[tuple[str, int, list[float]]],
-                  objects: dict[tuple[str, int], list[str]], meta: dict, saved: dict,
-                  name: str) -> None:  # fmt: skip
+def compare_saved(
+    rows: list[tuple[str, int, list[float]]],
+    objects: dict[tuple[str, int], list[str]],
+    meta: dict,
+    saved: dict,
+    name: str,
+) -> None:
     """Pair each row with the row of the same label and size in ``saved`` (a :func:`save_rows`
     file, read before anything was written), if both scored the same objects from the same
     context points; failed objects (NaN) are left out of the pair and counted."""
@@ -105,9 +119,11 @@ def compare_saved(rows: list[tuple[str, int, list[float]]],
 
     differs = [key for key, value in meta.items() if saved.get(key) != value]
     if differs:
-        raise SystemExit(f"{name} was made with other {', '.join(differs)} "
-                         f"({', '.join(f'{k}={saved.get(k)}' for k in differs)}): "
-                         "its context points are not these")  # fmt: skip
+        raise SystemExit(
+            f"{name} was made with other {', '.join(differs)} "
+            f"({', '.join(f'{k}={saved.get(k)}' for k in differs)}): "
+            "its context points are not these"
+        )
     before = {(r["label"], r["k"]): r for r in saved["rows"]}
     print(f"\nagainst {name} (same objects and context points; wins = lower now)")
     for label, k, scores in rows:
@@ -123,10 +139,12 @@ def compare_saved(rows: list[tuple[str, int, list[float]]],
             print(f"{label:<28} {k:>5}  no object succeeded in both{failed}")
             continue
         wins = int((now[ok] < old[ok]).sum())
-        print(f"{label:<28} {k:>5}  {np.mean(old[ok]):8.2f} -> {np.mean(now[ok]):8.2f}  "
-              f"median {np.median(old[ok]):7.2f} -> {np.median(now[ok]):7.2f}  "
-              f"wins {wins}/{int(ok.sum())}  p = {paired_p(now[ok], old[ok]):.2g}"
-              + (failed if not ok.all() else ""))  # fmt: skip
+        print(
+            f"{label:<28} {k:>5}  {np.mean(old[ok]):8.2f} -> {np.mean(now[ok]):8.2f}  "
+            f"median {np.median(old[ok]):7.2f} -> {np.median(now[ok]):7.2f}  "
+            f"wins {wins}/{int(ok.sum())}  p = {paired_p(now[ok], old[ok]):.2g}"
+            + (failed if not ok.all() else "")
+        )
 
 
 def stats(values: list[float]) -> str:
@@ -188,8 +206,13 @@ def objective_at(loss: Objective, codes: torch.Tensor, draws: int = 4) -> np.nda
     return torch.stack(values).mean(0).cpu().numpy()
 
 
-def objective_line(loss: Objective, own: torch.Tensor, found: torch.Tensor, own_scores: list[float],
-                   scores: list[float]) -> str:  # fmt: skip
+def objective_line(
+    loss: Objective,
+    own: torch.Tensor,
+    found: torch.Tensor,
+    own_scores: list[float],
+    scores: list[float],
+) -> str:
     """Is the search's answer a worse minimum of the objective than the trained code, or a
     better one? "found lower" objects whose completion is also worse are objects the objective
     ranks wrongly: no search of it can recover them."""
@@ -197,9 +220,11 @@ def objective_line(loss: Objective, own: torch.Tensor, found: torch.Tensor, own_
     lower = at_found < at_own
     worse = np.asarray(scores) > np.asarray(own_scores)
     both = int((lower & worse).sum())
-    return (f"  objective at trained / found code: {at_own.mean():.4g} / {at_found.mean():.4g}; "
-            f"found lower on {int(lower.sum())}/{len(lower)} objects, "
-            f"{both} of them completed worse than by the trained code")  # fmt: skip
+    return (
+        f"  objective at trained / found code: {at_own.mean():.4g} / {at_found.mean():.4g}; "
+        f"found lower on {int(lower.sum())}/{len(lower)} objects, "
+        f"{both} of them completed worse than by the trained code"
+    )
 
 
 def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
@@ -211,8 +236,12 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     parser.add_argument("--objects", type=int, default=6)
     parser.add_argument("--contexts", default="50,1000")
     parser.add_argument("--steps", default="50,400", help="opt_steps values to try")
-    parser.add_argument("--split", default=TRAINED, help="trained, novel or validation "
-                        "(held-out objects of the training categories; tune on these)")  # fmt: skip
+    parser.add_argument(
+        "--split",
+        default=TRAINED,
+        help="trained, novel or validation "
+        "(held-out objects of the training categories; tune on these)",
+    )
     parser.add_argument(
         "--train-only",
         action="store_true",
@@ -263,14 +292,20 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
     print(f"{'row':<28} {'k':>5} {'mean':>9} {'median':>8}    code dist  seconds")
     if table is not None:
         if len(table) != len(train_refs):
-            raise SystemExit(f"the checkpoint has {len(table)} codes, the training split "
-                             f"{len(train_refs)} objects: not this dataset's training")  # fmt: skip
+            raise SystemExit(
+                f"the checkpoint has {len(table)} codes, the training split "
+                f"{len(train_refs)} objects: not this dataset's training"
+            )
         own = table[[train_refs.index(r) for r in train_pick]].to(method.device)
-        print(f"{len(table)} trained codes, mean norm {table.norm(dim=1).mean():.3f}, mean "
-              f"pairwise distance {torch.cdist(table, table).mean():.3f}")  # fmt: skip
+        print(
+            f"{len(table)} trained codes, mean norm {table.norm(dim=1).mean():.3f}, mean "
+            f"pairwise distance {torch.cdist(table, table).mean():.3f}"
+        )
         ctx0 = [context_of(d, sizes[-1], args.seed) for d in train_objs]
-        oracle = [chamfer_x1000(method.decode(z, c, len(d.gt_points)), d, c)
-                  for z, d, c in zip(own, train_objs, ctx0, strict=True)]  # fmt: skip
+        oracle = [
+            chamfer_x1000(method.decode(z, c, len(d.gt_points)), d, c)
+            for z, d, c in zip(own, train_objs, ctx0, strict=True)
+        ]
         print(f"{'trained code, train obj':<28} {'-':>5} {stats(oracle)}")
         print(
             "  per object: "
@@ -292,8 +327,11 @@ def main(argv: list[str] | None = None) -> list[tuple[str, int, list[float]]]:
                 to_own = objs is train_objs and own is not None
                 dist = ((codes - own) if to_own else codes).norm(dim=1).mean().item()
                 what = "to trained" if to_own else "norm"
-                print(f"{label + f' {s} steps':<28} {k:>5} {stats(scores)} {what} {dist:.3f} "
-                      f"{time.perf_counter() - start:>7.1f}", flush=True)  # fmt: skip
+                print(
+                    f"{label + f' {s} steps':<28} {k:>5} {stats(scores)} {what} {dist:.3f} "
+                    f"{time.perf_counter() - start:>7.1f}",
+                    flush=True,
+                )
                 if to_own and loss is not None and s > 0:
                     # a decoded code's score does not depend on k (the mesh is sampled from
                     # the context's seed, which k does not change): the trained-code row's

@@ -39,9 +39,11 @@ def compare(board, reference: str) -> list[str]:
             f"no row labelled {reference!r} in {board.dataset}/{board.split}; "
             f"--reference takes one of: {known}"
         )
-    lines = [f"{board.dataset}/{board.split}, {board.metric} x{board.scale:g}, against "
-             f"{reference} (wins: objects where the row is lower)",
-             f"{'row':<28} {'k':>5} {'mean':>8} {'median':>8} {'wins':>7} {'p':>8}"]  # fmt: skip
+    lines = [
+        f"{board.dataset}/{board.split}, {board.metric} x{board.scale:g}, against "
+        f"{reference} (wins: objects where the row is lower)",
+        f"{'row':<28} {'k':>5} {'mean':>8} {'median':>8} {'wins':>7} {'p':>8}",
+    ]
     for row in board.rows:
         for k in board.contexts:
             mine = scored[(scored["variant"] == row.variant) & (scored["context"] == k)]
@@ -53,8 +55,10 @@ def compare(board, reference: str) -> list[str]:
             b = pairs["scored_ref"].to_numpy() * board.scale
             wins = f"{int((a < b).sum())}/{len(a)}"
             p = "-" if row.variant == ref else f"{paired_p(a, b):.2g}"
-            lines.append(f"{labels[row.variant]:<28} {k:>5} {a.mean():>8.2f} "
-                         f"{np.median(a):>8.2f} {wins:>7} {p:>8}")  # fmt: skip
+            lines.append(
+                f"{labels[row.variant]:<28} {k:>5} {a.mean():>8.2f} "
+                f"{np.median(a):>8.2f} {wins:>7} {p:>8}"
+            )
     return lines + more_points(board)
 
 
@@ -65,8 +69,10 @@ def more_points(board) -> list[str]:
     scored = board.scored
     lo, hi = min(board.contexts), max(board.contexts)
     head = f"{'row':<28} {'lower':>7} {'p':>8} {'ratio of means':>15} {'of medians':>11}"
-    lines = [f"k={lo} against k={hi} (lower: objects lower at k={hi}; ratios: k={lo} / k={hi})",
-             head]  # fmt: skip
+    lines = [
+        f"k={lo} against k={hi} (lower: objects lower at k={hi}; ratios: k={lo} / k={hi})",
+        head,
+    ]
     for row in board.rows:
         mine = scored[scored["variant"] == row.variant]
         small, large = mine[mine["context"] == lo], mine[mine["context"] == hi]
@@ -86,8 +92,10 @@ def more_points(board) -> list[str]:
 def by_seed(board) -> list[str]:
     """Each row's mean at each context size, per seed: the spread across training seeds."""
     scored = board.scored
-    lines = [f"{board.dataset}/{board.split}, mean {board.metric} x{board.scale:g} per seed",
-             f"{'row':<28} {'k':>5}  means by seed"]  # fmt: skip
+    lines = [
+        f"{board.dataset}/{board.split}, mean {board.metric} x{board.scale:g} per seed",
+        f"{'row':<28} {'k':>5}  means by seed",
+    ]
     for row in board.rows:
         mine = scored[scored["variant"] == row.variant]
         for k in board.contexts:
@@ -100,23 +108,28 @@ def by_seed(board) -> list[str]:
 def compare_before(now, before) -> list[str]:
     """Each row of ``now`` against the row of the same label in ``before``, per context size."""
     old = {r.label: r.variant for r in before.rows}
-    lines = ["now against before (wins: objects where now is lower)",
-             f"{'row':<28} {'k':>5} {'before':>8} {'now':>8} {'wins':>7} {'p':>8}"]  # fmt: skip
+    lines = [
+        "now against before (wins: objects where now is lower)",
+        f"{'row':<28} {'k':>5} {'before':>8} {'now':>8} {'wins':>7} {'p':>8}",
+    ]
     for row in now.rows:
         if row.label not in old:
             continue
         for k in now.contexts:
             mine = now.scored[(now.scored["variant"] == row.variant) & (now.scored["context"] == k)]
-            theirs = before.scored[(before.scored["variant"] == old[row.label])
-                                   & (before.scored["context"] == k)]  # fmt: skip
+            theirs = before.scored[
+                (before.scored["variant"] == old[row.label]) & (before.scored["context"] == k)
+            ]
             pairs = mine.merge(theirs, on=["object", "seed"], suffixes=("", "_ref"))
             if pairs.empty:
                 continue
             a = pairs["scored"].to_numpy() * now.scale
             b = pairs["scored_ref"].to_numpy() * now.scale
             p = "-" if np.array_equal(a, b) else f"{paired_p(a, b):.2g}"
-            lines.append(f"{row.label:<28} {k:>5} {b.mean():>8.2f} {a.mean():>8.2f} "
-                         f"{int((a < b).sum())}/{len(a):<5} {p:>8}")  # fmt: skip
+            lines.append(
+                f"{row.label:<28} {k:>5} {b.mean():>8.2f} {a.mean():>8.2f} "
+                f"{int((a < b).sum())}/{len(a):<5} {p:>8}"
+            )
     return lines
 
 
@@ -139,8 +152,13 @@ def main() -> None:
         print()
         print("\n".join(by_seed(board)))
     if args.before:
-        before = build_board(Tracker(make_settings(workspace=args.before)), args.dataset,
-                             args.split, args.reference, args.metric)  # fmt: skip
+        before = build_board(
+            Tracker(make_settings(workspace=args.before)),
+            args.dataset,
+            args.split,
+            args.reference,
+            args.metric,
+        )
         if before is None or before.scored is None:
             raise SystemExit(f"no runs of {args.dataset}-{args.split} in {args.before}")
         print()

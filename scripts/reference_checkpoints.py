@@ -91,15 +91,24 @@ def training_tags(settings, run_id: str) -> dict[str, str]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--methods", default=None, help="comma-separated (default: every "
-                        "trainable method of the default sweep)")  # fmt: skip
+    parser.add_argument(
+        "--methods",
+        default=None,
+        help="comma-separated (default: every trainable method of the default sweep)",
+    )
     parser.add_argument("--workspace", default=str(Path(tempfile.gettempdir()) / "shapebench-refs"))
     parser.add_argument("--export-only", action="store_true", help="never train")
     parser.add_argument("--keep-stale", action="store_true")
-    parser.add_argument("--note", default="", help="recorded in reference.json, e.g. how the "
-                        "workspace's trainings were run")  # fmt: skip
-    parser.add_argument("--allow-dirty", action="store_true", help="export trainings made from "
-                        "another or a modified tree (recorded in reference.json)")  # fmt: skip
+    parser.add_argument(
+        "--note",
+        default="",
+        help="recorded in reference.json, e.g. how the workspace's trainings were run",
+    )
+    parser.add_argument(
+        "--allow-dirty",
+        action="store_true",
+        help="export trainings made from another or a modified tree (recorded in reference.json)",
+    )
     args = parser.parse_args(argv)
 
     from shapebench.config import make_settings
@@ -182,8 +191,10 @@ def main(argv: list[str] | None = None) -> None:
         if args.note:
             info["note"] = args.note
         ref = export(Path(record["path"]), target / family / key, info)
-        print(f"{name}: {ref.checkpoint} ({ref.info['bytes'] / 1e6:.2f} MB), "
-              f"trained in {summary['wall_seconds']:.0f} s on {summary['device']}")  # fmt: skip
+        print(
+            f"{name}: {ref.checkpoint} ({ref.info['bytes'] / 1e6:.2f} MB), "
+            f"trained in {summary['wall_seconds']:.0f} s on {summary['device']}"
+        )
     if args.keep_stale:
         return
     for family, keys in done_keys.items():

@@ -62,6 +62,7 @@ MOVED: dict[str, str] = {
     "shapebench.report": "shapebench.cli.printing",
     "shapebench.cli": "shapebench.cli.app",
     "shapebench.apidoc": "shapebench.cli.apidoc",
+    "shapebench.implicit.module_base": "shapebench.train.lightning_module",
 }
 
 

@@ -18,9 +18,22 @@ def is_terminal() -> bool:
         return False
 
 
-def progress_bar(total: int | None = None, desc: str = "", quiet: bool = False,
-                 leave: bool = False, unit: str = "obj", iterable: Any = None) -> Any:  # fmt: skip
+def progress_bar(
+    total: int | None = None,
+    desc: str = "",
+    quiet: bool = False,
+    leave: bool = False,
+    unit: str = "obj",
+    iterable: Any = None,
+) -> Any:
     from tqdm import tqdm
 
-    return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, file=sys.stderr,
-                disable=quiet or not is_terminal())  # fmt: skip
+    return tqdm(
+        iterable,
+        total=total,
+        desc=desc,
+        unit=unit,
+        leave=leave,
+        file=sys.stderr,
+        disable=quiet or not is_terminal(),
+    )

@@ -22,14 +22,35 @@ PLUGINS = ROOT / "tests" / "plugins"
 
 #: Dataset options that make the synthetic benchmark tiny: one test object per category.
 TINY = [
-    "-D", "test_per_category=1", "-D", "train_per_category=1",
-    "-D", "surface_candidates=3000", "-D", "gt_points=2000",
-]  # fmt: skip
+    "-D",
+    "test_per_category=1",
+    "-D",
+    "train_per_category=1",
+    "-D",
+    "surface_candidates=3000",
+    "-D",
+    "gt_points=2000",
+]
 TINY_CONTEXTS = ["--contexts", "50,100"]
 #: A small IGR that trains in seconds (2 epochs of a 2 x 32 network), for CLI tests.
-SMALL_IGR = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=2",
-             "-O", "batch_shapes=4", "-O", "surface_points=128", "-O", "opt_steps=5",
-             "-O", "mesh_resolution=24"]  # fmt: skip
+SMALL_IGR = [
+    "-O",
+    "latent_dim=8",
+    "-O",
+    "width=32",
+    "-O",
+    "depth=2",
+    "-O",
+    "epochs=2",
+    "-O",
+    "batch_shapes=4",
+    "-O",
+    "surface_points=128",
+    "-O",
+    "opt_steps=5",
+    "-O",
+    "mesh_resolution=24",
+]
 
 
 def load_benchmark(name: str):
@@ -46,10 +67,23 @@ def load_benchmark(name: str):
 
 def pip_install_to(target: Path, project: Path) -> Path:
     subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
-         "--disable-pip-version-check", "--target", str(target), str(project)],
-        check=True, capture_output=True, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--no-build-isolation",
+            "--disable-pip-version-check",
+            "--target",
+            str(target),
+            str(project),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     return target
 
 
@@ -105,15 +139,24 @@ class Shapebench:
 
     def popen(self, *args: str, **kw) -> subprocess.Popen:
         return subprocess.Popen(
-            [sys.executable, "-m", "shapebench", *args], env=self.env(), cwd=self.workspace,
-            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw,
-        )  # fmt: skip
+            [sys.executable, "-m", "shapebench", *args],
+            env=self.env(),
+            cwd=self.workspace,
+            text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            **kw,
+        )
 
     def __call__(self, *args: str, timeout: float = 300) -> Result:
         proc = subprocess.run(
-            [sys.executable, "-m", "shapebench", *args], env=self.env(), cwd=self.workspace,
-            capture_output=True, text=True, timeout=timeout,
-        )  # fmt: skip
+            [sys.executable, "-m", "shapebench", *args],
+            env=self.env(),
+            cwd=self.workspace,
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+        )
         return Result(proc.returncode, proc.stdout, proc.stderr)
 
     def client(self):

@@ -53,8 +53,9 @@ class SlurmCluster:
         return res.stdout
 
     def logs(self) -> str:
-        return "\n".join(p.read_text(errors="replace")[-3000:]
-                         for p in sorted((self.root / "log").glob("*.log")))  # fmt: skip
+        return "\n".join(
+            p.read_text(errors="replace")[-3000:] for p in sorted((self.root / "log").glob("*.log"))
+        )
 
     def stop(self) -> None:
         self.run("scancel", "--user", "root", check=False)
@@ -77,11 +78,20 @@ def start_cluster(root: Path, cpus: int | None = None) -> SlurmCluster:
     key.chmod(0o600)
     munge.chmod(0o700)
     subprocess.run(
-        ["munged", "--force", f"--socket={munge / 'sock'}", f"--key-file={key}",
-         f"--pid-file={munge / 'munged.pid'}", f"--log-file={root / 'log' / 'munged.log'}",
-         f"--seed-file={munge / 'seed'}"],
-        check=True, capture_output=True, text=True, timeout=30,
-    )  # fmt: skip
+        [
+            "munged",
+            "--force",
+            f"--socket={munge / 'sock'}",
+            f"--key-file={key}",
+            f"--pid-file={munge / 'munged.pid'}",
+            f"--log-file={root / 'log' / 'munged.log'}",
+            f"--seed-file={munge / 'seed'}",
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     conf = root / "slurm.conf"
     conf.write_text(
         f"""ClusterName=shapebench-test

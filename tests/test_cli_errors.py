@@ -78,6 +78,19 @@ def test_trainable_method_on_a_dataset_without_training_objects(shapebench, tmp_
     root = tmp_path / "scans"
     root.mkdir()
     trimesh.creation.icosphere().export(root / "ball.obj")
-    res = shapebench("run", "-m", "igr", "-d", "meshes", "--data-root", str(root), "--contexts",
-                     "50", "-D", "surface_candidates=2000", "-D", "gt_points=1000")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "igr",
+        "-d",
+        "meshes",
+        "--data-root",
+        str(root),
+        "--contexts",
+        "50",
+        "-D",
+        "surface_candidates=2000",
+        "-D",
+        "gt_points=1000",
+    )
     _clean_error(res, "method 'igr' needs training", "has no training objects", "--checkpoint")

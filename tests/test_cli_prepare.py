@@ -14,8 +14,18 @@ def test_prepare_reports_ready_and_failed_objects(shapebench, tmp_path):
     trimesh.creation.box((1, 2, 3)).export(root / "boxes" / "a.obj")
     trimesh.creation.icosphere().export(root / "boxes" / "b.ply")
     (root / "boxes" / "broken.obj").write_text("f 1 2 3\n")
-    args = ["prepare", "-d", "meshes", "--data-root", str(root), "-D", "surface_candidates=2000",
-            "-D", "gt_points=1000", "-q"]  # fmt: skip
+    args = [
+        "prepare",
+        "-d",
+        "meshes",
+        "--data-root",
+        str(root),
+        "-D",
+        "surface_candidates=2000",
+        "-D",
+        "gt_points=1000",
+        "-q",
+    ]
     res = shapebench(*args, "--jobs", "2")
     assert res.returncode == 0, res.stderr
     assert "2/3 objects ready (0 already cached), 1 failed" in res.stdout
@@ -30,8 +40,18 @@ def test_prepare_shards_objects_over_submitit_jobs(shapebench, tmp_path):
     (root / "shapes").mkdir(parents=True)
     for i in range(5):
         trimesh.creation.box((1, 1 + i, 2)).export(root / "shapes" / f"box{i}.obj")
-    args = ["prepare", "-d", "meshes", "--data-root", str(root), "-D", "surface_candidates=2000",
-            "-D", "gt_points=1000", "-q"]  # fmt: skip
+    args = [
+        "prepare",
+        "-d",
+        "meshes",
+        "--data-root",
+        str(root),
+        "-D",
+        "surface_candidates=2000",
+        "-D",
+        "gt_points=1000",
+        "-q",
+    ]
     res = shapebench(*args, "--launcher", "submitit-local", "--shards", "2", timeout=600)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "2 prepare jobs" in res.stdout

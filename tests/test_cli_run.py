@@ -51,8 +51,10 @@ def test_run_gauss_logs_every_cell_and_prints_summary(shapebench):
         assert plys and all(a.path.endswith(".ply") for a in plys)
     # More context points, closer to the truth (Gauss densification must improve with k).
     trained = _tags_by_cell(shapebench.cell_runs("synthetic-trained"))
-    assert (trained[("trained", 100)].data.metrics["chamfer-l2.mean"]
-            < trained[("trained", 50)].data.metrics["chamfer-l2.mean"])  # fmt: skip
+    assert (
+        trained[("trained", 100)].data.metrics["chamfer-l2.mean"]
+        < trained[("trained", 50)].data.metrics["chamfer-l2.mean"]
+    )
 
 
 def test_rerun_skips_finished_cells_and_force_recomputes(shapebench):
@@ -84,8 +86,11 @@ def test_every_method_sees_the_same_context_points(with_example):
     assert all(len(d) == 1 for d in digests.values()), digests
     # And the stored contexts are nested: the 50 points are the first 50 of the 100.
     client = sb.client()
-    by_k = {int(r.data.tags["context_size"]): r.info.run_id for r in runs
-            if r.data.tags["method"] == "gauss"}  # fmt: skip
+    by_k = {
+        int(r.data.tags["context_size"]): r.info.run_id
+        for r in runs
+        if r.data.tags["method"] == "gauss"
+    }
     arrays = {}
     for k, run_id in by_k.items():
         path = client.download_artifacts(run_id, "contexts.npz", str(sb.workspace / str(k)))
@@ -101,8 +106,9 @@ def test_method_failures_are_recorded_per_object(with_example):
     assert len(runs) == 1
     run = runs[0]
     client = with_example.client()
-    table = pd.read_csv(client.download_artifacts(run.info.run_id, "per_object.csv",
-                                                  str(with_example.workspace)))  # fmt: skip
+    table = pd.read_csv(
+        client.download_artifacts(run.info.run_id, "per_object.csv", str(with_example.workspace))
+    )
     failed = table[table.status == "failed"]
     assert run.data.metrics["failures"] == len(failed) > 0
     assert run.data.metrics["n_objects"] == len(table) == 11

@@ -19,8 +19,13 @@ from shapebench.sweeps.spec import load_sweep
 
 
 def test_launcher_block_then_command_line_then_per_method_overrides():
-    block = {"name": "slurm", "partition": "gpu", "time": 240, "gpus_per_node": 1,
-             "methods": {"gauss": {"gpus_per_node": 0, "time": 10}}}  # fmt: skip
+    block = {
+        "name": "slurm",
+        "partition": "gpu",
+        "time": 240,
+        "gpus_per_node": 1,
+        "methods": {"gauss": {"gpus_per_node": 0, "time": 10}},
+    }
     cfg = launcher_config(block, {"time": "30", "extra": {"mail-type": "END"}}, None)
     assert (cfg.name, cfg.partition, cfg.time, cfg.gpus_per_node) == ("slurm", "gpu", 30, 1)
     gauss = cfg.for_method("gauss")
@@ -98,8 +103,7 @@ def test_plan_lists_missing_cells_then_nothing_once_the_sweep_ran(shapebench, tm
 def test_run_through_the_cluster_launcher_computes_the_cells_run_inline_finds(shapebench):
     """`run --launcher submitit-local` logs under the same cell keys as an inline `run`."""
     sb = shapebench
-    args = ["run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
-            "--contexts", "50"]  # fmt: skip
+    args = ["run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel", "--contexts", "50"]
     res = sb(*args, "--launcher", "submitit-local", timeout=600)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "as a sweep of one method" in res.stdout and "1 cells: 1 finished" in res.stdout

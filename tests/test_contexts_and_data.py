@@ -69,7 +69,10 @@ def test_gauss_fills_up_to_n_points_around_the_context():
 
 def test_option_parsing_and_validation():
     assert parse_assignments(["sigma=0.02", "name=x", "flag=true"], "-O") == {
-        "sigma": 0.02, "name": "x", "flag": True}  # fmt: skip
+        "sigma": 0.02,
+        "name": "x",
+        "flag": True,
+    }
     assert build(GaussOptions, {"sigma": 1}, "gauss").sigma == 1.0
     with pytest.raises(ConfigError, match="sigma"):
         build(GaussOptions, {"sigma": "wide"}, "gauss")
@@ -80,8 +83,14 @@ def test_option_parsing_and_validation():
 def test_training_samples_are_cached_apart_and_leave_evaluation_data_alone(tmp_path):
     from shapebench.api.types import Supervision
 
-    small = SyntheticOptions(test_per_category=1, train_per_category=1, surface_candidates=2000,
-                             gt_points=1000, sdf_samples=5000, complete_points=512)  # fmt: skip
+    small = SyntheticOptions(
+        test_per_category=1,
+        train_per_category=1,
+        surface_candidates=2000,
+        gt_points=1000,
+        sdf_samples=5000,
+        complete_points=512,
+    )
     ds = SyntheticDataset(small, tmp_path)
     ref = ds.objects(TRAIN)[0]
     data = ds.load(ref, need=frozenset({Supervision.SDF_SAMPLES, Supervision.COMPLETE_POINTS}))

@@ -32,8 +32,9 @@ from shapebench.train.checkpoints import (
     verify_checkpoint,
 )
 
-SMALL = SyntheticOptions(test_per_category=1, train_per_category=1, surface_candidates=2000,
-                         gt_points=1000)  # fmt: skip
+SMALL = SyntheticOptions(
+    test_per_category=1, train_per_category=1, surface_candidates=2000, gt_points=1000
+)
 
 
 def _truncate(path: Path) -> None:
@@ -223,8 +224,20 @@ def test_run_with_a_pickle_payload_checkpoint_is_one_clean_error(shapebench, tmp
     payload = torch.load(checkpoint, map_location="cpu", weights_only=True)
     payload["extra"] = _Payload(marker)
     torch.save(payload, evil)
-    res = shapebench("run", "-m", "msc", "-d", "synthetic", *TINY, "--split", "novel",
-                     "--contexts", "50", "--checkpoint", str(evil))  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "msc",
+        "-d",
+        "synthetic",
+        *TINY,
+        "--split",
+        "novel",
+        "--contexts",
+        "50",
+        "--checkpoint",
+        str(evil),
+    )
     assert res.returncode == 2, (res.stdout, res.stderr)
     assert "Traceback" not in res.stderr
     assert f"Error: checkpoint {evil} holds Python objects" in res.stderr

@@ -187,8 +187,9 @@ def test_missing_data_and_broken_sequences(tmp_path):
     (seq / "traj2.gt.freiburg").write_text("1 0 0 0 0 0 0 1\n")
     ds = icl(root, tmp_path / "cache")
     assert [(r.id, r.category) for r in ds.objects("all")] == [
-        ("office/traj1_frei_png", "office"), ("office/traj2_frei_png", "office"),
-    ]  # fmt: skip
+        ("office/traj1_frei_png", "office"),
+        ("office/traj2_frei_png", "office"),
+    ]
     no_traj, bad_png = ds.objects("all")
     with pytest.raises(ObjectLoadError, match="trajectory"):
         ds.load(no_traj)
@@ -283,9 +284,22 @@ def test_run_says_why_a_scene_failed_and_that_the_card_promises_too_many_points(
     broken = root / "office" / "broken" / "depth"
     broken.mkdir(parents=True)
     (broken / "1.png").write_bytes((REAL / "depth" / "1.png").read_bytes())
-    res = shapebench("run", "-m", "gauss", "-d", "icl-nuim", "--data-root", str(root),
-                     "-D", "surface_candidates=3000", "-D", "gt_points=500000", "--contexts", "50",
-                     "-q")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "icl-nuim",
+        "--data-root",
+        str(root),
+        "-D",
+        "surface_candidates=3000",
+        "-D",
+        "gt_points=500000",
+        "--contexts",
+        "50",
+        "-q",
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     out = res.stdout + res.stderr
     assert "scene office/broken: no camera trajectory" in out

@@ -54,8 +54,11 @@ def test_folders_are_categories_and_everything_is_novel_by_default(tmp_path):
     ds = dataset(make_folder(tmp_path / "data"), tmp_path / "cache")
     assert ds.categories() == [Category("animals", NOVEL), Category("misc", NOVEL)]
     assert [r.id for r in ds.objects(NOVEL)] == [
-        "animals/broken", "animals/bunny", "animals/spot", "suzanne",
-    ]  # fmt: skip
+        "animals/broken",
+        "animals/bunny",
+        "animals/spot",
+        "suzanne",
+    ]
     assert ds.objects(NOVEL)[-1] == ObjectRef("suzanne", "misc")
     assert ds.objects(TRAIN) == [] and ds.objects(TRAINED) == []
 

@@ -115,8 +115,10 @@ def test_v1_tree_gives_the_papers_categories_and_a_deterministic_split(tmp_path)
     assert all(r.id.startswith(f"{CHAIR}/") for r in train + test)
     again = shapenet(root, tmp_path / "other-cache")
     assert (again.objects(TRAIN), again.objects(TRAINED), again.objects(NOVEL)) == (
-        train, test, novel,
-    )  # fmt: skip
+        train,
+        test,
+        novel,
+    )
     assert ds.version == "shapenet-v1-prep1"
     whole = shapenet(root, tmp_path / "cache", test_fraction=1.0)
     assert whole.objects(TRAIN) == [] and len(whole.objects(TRAINED)) == 5

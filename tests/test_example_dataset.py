@@ -23,8 +23,20 @@ def test_the_example_dataset_is_listed_and_evaluated(shapebench, primitives_site
     listed = sb("datasets")
     assert listed.returncode == 0 and "primitives" in listed.stdout
     assert "shapebench-primitives" in sb("plugins").stdout
-    res = sb("run", "-m", "gauss", "-d", "primitives", "-D", "surface_candidates=3000",
-             "-D", "gt_points=2000", "--contexts", "50", "-q")  # fmt: skip
+    res = sb(
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "primitives",
+        "-D",
+        "surface_candidates=3000",
+        "-D",
+        "gt_points=2000",
+        "--contexts",
+        "50",
+        "-q",
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     assert "primitives/trained: 2 objects in 2 categories" in res.stdout
     assert "primitives/novel: 1 objects in 1 categories" in res.stdout

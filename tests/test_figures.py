@@ -25,8 +25,16 @@ def _scored(labels: dict[str, tuple[float, float]], contexts=(50, 100, 300, 1000
         for i, k in enumerate(contexts):
             for obj in range(n):
                 value = mean / 2**i + spread * rng.standard_normal()
-                rows.append({"variant": label, "label": label, "context": k, "seed": 0,
-                             "object": str(obj), "scored": value})  # fmt: skip
+                rows.append(
+                    {
+                        "variant": label,
+                        "label": label,
+                        "context": k,
+                        "seed": 0,
+                        "object": str(obj),
+                        "scored": value,
+                    }
+                )
     return pd.DataFrame(rows)
 
 
@@ -76,10 +84,14 @@ def test_context_curve_scales_to_the_cards_unit():
 
 
 def test_pareto_sizes_markers_by_training_device_hours():
-    points = pd.DataFrame({
-        "label": ["gauss", "pcn", "msc"], "value": [15.0, 24.0, 55.0],
-        "seconds_per_object": [0.004, 0.01, 1.0], "train_device_hours": [np.nan, 0.3, 0.03],
-    })  # fmt: skip
+    points = pd.DataFrame(
+        {
+            "label": ["gauss", "pcn", "msc"],
+            "value": [15.0, 24.0, 55.0],
+            "seconds_per_object": [0.004, 0.01, 1.0],
+            "train_device_hours": [np.nan, 0.3, 0.03],
+        }
+    )
     fig = figures.pareto(points, "s/object", "chamfer", "t")
     ax = fig.axes[0]
     marks = {c.get_label(): c for c in ax.collections if isinstance(c, PathCollection)}
@@ -110,9 +122,13 @@ def test_training_summary_counts_device_hours_and_prints_them(capsys):
 
     device = SimpleNamespace(type="cpu")
     trainer = SimpleNamespace(
-        strategy=SimpleNamespace(root_device=device), num_devices=2, num_nodes=3,
-        callback_metrics={"train/loss": 0.5, "val/x": 1.0}, current_epoch=4, global_step=40,
-    )  # fmt: skip
+        strategy=SimpleNamespace(root_device=device),
+        num_devices=2,
+        num_nodes=3,
+        callback_metrics={"train/loss": 0.5, "val/x": 1.0},
+        current_epoch=4,
+        global_step=40,
+    )
     summary = training_summary(trainer, 1800.0)
     assert summary["devices"] == 6 and summary["device_hours"] == pytest.approx(3.0)
     assert summary["device"] == "cpu x6" and summary["final"] == {"train/loss": 0.5}
@@ -134,19 +150,26 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
     client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
     exp = client.create_experiment("synthetic-train")
     new = client.create_run(exp, tags={"training_device": "cuda x4 (NVIDIA H100)"}).info.run_id
-    for key, value in {"summary/wall_seconds": 900.0, "summary/device_hours": 1.0,
-                       "summary/epochs": 10.0, "summary/final_loss": 0.25}.items():  # fmt: skip
+    for key, value in {
+        "summary/wall_seconds": 900.0,
+        "summary/device_hours": 1.0,
+        "summary/epochs": 10.0,
+        "summary/final_loss": 0.25,
+    }.items():
         client.log_metric(new, key, value)
     # A training logged before device-hours were recorded: derived from wall time x devices.
     old = client.create_run(exp, tags={"training_device": "cuda x2"}).info.run_id
     client.log_metric(old, "summary/wall_seconds", 3600.0)
-    runs = pd.DataFrame({"variant.key": ["msc", "msc", "old", "gauss"],
-                         "training_run_id": [new, new, old, ""]})  # fmt: skip
-    per_object = pd.DataFrame({
-        "variant": ["msc", "msc", "msc", "old", "gauss", "gauss"],
-        "status": ["ok", "ok", "failed", "ok", "ok", "ok"],
-        "seconds": [1.0, 3.0, 50.0, 2.0, 0.01, 0.03],
-    })  # fmt: skip
+    runs = pd.DataFrame(
+        {"variant.key": ["msc", "msc", "old", "gauss"], "training_run_id": [new, new, old, ""]}
+    )
+    per_object = pd.DataFrame(
+        {
+            "variant": ["msc", "msc", "msc", "old", "gauss", "gauss"],
+            "status": ["ok", "ok", "failed", "ok", "ok", "ok"],
+            "seconds": [1.0, 3.0, 50.0, 2.0, 0.01, 0.03],
+        }
+    )
     costs = row_costs(client, runs, per_object).set_index("variant")
     assert costs.loc["msc", "seconds_per_object"] == pytest.approx(2.0)  # successes only
     assert costs.loc["msc", "train_device_hours"] == pytest.approx(1.0)
@@ -168,8 +191,19 @@ def test_leaderboard_writes_figures_and_cost_columns_and_logs_them(with_example)
 
     sb = with_example
     for method in ("gauss", "example-sphere"):
-        res = sb("run", "-m", method, "-d", "synthetic", *TINY, "--contexts", "50,100,300",
-                 "-q", "--split", "novel")  # fmt: skip
+        res = sb(
+            "run",
+            "-m",
+            method,
+            "-d",
+            "synthetic",
+            *TINY,
+            "--contexts",
+            "50,100,300",
+            "-q",
+            "--split",
+            "novel",
+        )
         assert res.returncode == 0, res.stderr
     res = sb("leaderboard", "-d", "synthetic", "--reference", "gauss")
     assert res.returncode == 0, res.stderr
@@ -205,8 +239,12 @@ def test_leaderboard_writes_figures_and_cost_columns_and_logs_them(with_example)
     )
     assert len(run) == 1
     names = {a.path for a in tracker.client.list_artifacts(run[0].info.run_id)}
-    assert {"synthetic-novel.md", "synthetic-novel-chamfer.png", "synthetic-novel-pareto.svg",
-            "synthetic-novel.csv"} <= names  # fmt: skip
+    assert {
+        "synthetic-novel.md",
+        "synthetic-novel-chamfer.png",
+        "synthetic-novel-pareto.svg",
+        "synthetic-novel.csv",
+    } <= names
     # Rebuilding reuses that run.
     assert sb("leaderboard", "-d", "synthetic", "--reference", "gauss").returncode == 0
     again = tracker.client.search_runs(

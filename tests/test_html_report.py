@@ -33,8 +33,19 @@ def store(tmp_path_factory, data_cache, example_site) -> Shapebench:
     ws = tmp_path_factory.mktemp("report-ws")
     sb = Shapebench(ws, data_cache, (example_site,))
     for method in ("gauss", "example-sphere"):
-        res = sb("run", "-m", method, "-d", "synthetic", *TINY, "--contexts", CONTEXTS, "-q",
-                 "--split", "novel")  # fmt: skip
+        res = sb(
+            "run",
+            "-m",
+            method,
+            "-d",
+            "synthetic",
+            *TINY,
+            "--contexts",
+            CONTEXTS,
+            "-q",
+            "--split",
+            "novel",
+        )
         assert res.returncode == 0, res.stderr
     res = sb("report", "-d", "synthetic", "--reference", "gauss")
     assert res.returncode == 0, res.stderr
@@ -43,8 +54,11 @@ def store(tmp_path_factory, data_cache, example_site) -> Shapebench:
 
 
 def _cells(sb: Shapebench, method: str) -> dict[int, object]:
-    return {int(r.data.tags["context_size"]): r for r in sb.cell_runs("synthetic-novel")
-            if r.data.tags["method"] == method}  # fmt: skip
+    return {
+        int(r.data.tags["context_size"]): r
+        for r in sb.cell_runs("synthetic-novel")
+        if r.data.tags["method"] == method
+    }
 
 
 def test_every_method_pictures_the_same_objects(store, tmp_path):
@@ -111,8 +125,12 @@ def test_report_opens_in_chromium_with_tables_figures_and_grids(store, tmp_path)
 
         # Sorting: click the "100" header, ascending then descending by the numbers.
         def column(i: int) -> list[float]:
-            return [float(v) for v in raw.locator(f"tbody tr td:nth-child({i})").evaluate_all(
-                "cells => cells.map(c => c.dataset.sort)")]  # fmt: skip
+            return [
+                float(v)
+                for v in raw.locator(f"tbody tr td:nth-child({i})").evaluate_all(
+                    "cells => cells.map(c => c.dataset.sort)"
+                )
+            ]
 
         raw.locator("thead th", has_text="100").click()
         assert column(3) == sorted(column(3))
@@ -223,8 +241,9 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
             return Completion(points=base, samples=samples)
 
     dataset = _Primitives.build(tmp_path)
-    settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path / "cache", "quick",
-                             tmp_path)  # fmt: skip
+    settings = make_settings(
+        f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path / "cache", "quick", tmp_path
+    )
     registry = get_registry()
     method = resolve_method(registry, "gauss", settings)
     plan = RunPlan(method, dataset, [NOVEL], [50, 100], [0], resolve_metrics(registry, None))

@@ -77,8 +77,10 @@ def test_latent_optimisation_lowers_the_context_loss(scale):
     for p in module.parameters():
         p.requires_grad_(False)
     pts = torch.stack([_sphere(200, 0.4, seed=s)[0] for s in (3, 4)])  # two objects
-    ctxs = [Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=i)
-            for i in range(2)]  # fmt: skip
+    ctxs = [
+        Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=i)
+        for i in range(2)
+    ]
     z0 = initial_latents(ctxs, 16, 0.01, torch.device("cpu"))
     loss = module.completion_loss(pts, None)
     lr = 0.5 if scale else 5e-2  # "lr x error_0" needs a larger base step for the same effect
@@ -90,8 +92,10 @@ def test_latent_optimisation_lowers_the_context_loss(scale):
 
 
 def test_initial_latents_are_seeded_per_object():
-    ctxs = [Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=s)
-            for i, s in enumerate((7, 8, 7))]  # fmt: skip
+    ctxs = [
+        Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=s)
+        for i, s in enumerate((7, 8, 7))
+    ]
     z = initial_latents(ctxs, 64, 0.01, torch.device("cpu"))
     assert torch.equal(z[0], z[2]) and not torch.equal(z[0], z[1])
     assert 0.005 < float(z.std()) < 0.02

@@ -11,8 +11,22 @@ from conftest import TINY
 pytestmark = pytest.mark.slow  # every test trains through the CLI in subprocesses
 
 #: Tiny networks and one epoch: these tests check the machinery, not the quality.
-SMALL_NET = ["-O", "latent_dim=8", "-O", "width=32", "-O", "depth=2", "-O", "epochs=1",
-             "-O", "batch_shapes=4", "-O", "mesh_resolution=32", "-O", "opt_steps=5"]  # fmt: skip
+SMALL_NET = [
+    "-O",
+    "latent_dim=8",
+    "-O",
+    "width=32",
+    "-O",
+    "depth=2",
+    "-O",
+    "epochs=1",
+    "-O",
+    "batch_shapes=4",
+    "-O",
+    "mesh_resolution=32",
+    "-O",
+    "opt_steps=5",
+]
 SURFACE = ["-O", "surface_points=64"]
 
 
@@ -41,8 +55,22 @@ def test_ddp_over_two_cpu_processes_logs_one_training_run(shapebench):
 
 
 def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
-    args = ["-d", "synthetic", *TINY, *SMALL_NET, *SURFACE, "-O", "encoder_width=16",
-            "-O", "max_target=64", "--split", "novel", "--contexts", "50", "-q"]  # fmt: skip
+    args = [
+        "-d",
+        "synthetic",
+        *TINY,
+        *SMALL_NET,
+        *SURFACE,
+        "-O",
+        "encoder_width=16",
+        "-O",
+        "max_target=64",
+        "--split",
+        "novel",
+        "--contexts",
+        "50",
+        "-q",
+    ]
     res = shapebench("run", "-m", "msc", *args, "--samples", "2")
     assert res.returncode == 0, res.stderr[-3000:]
     cells = shapebench.cell_runs("synthetic-novel")
@@ -50,8 +78,9 @@ def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
     assert cells[0].data.tags["training_run_id"] == _training_runs(shapebench)[0].info.run_id
     client = shapebench.client()
     run_id = cells[0].info.run_id
-    table = pd.read_csv(client.download_artifacts(run_id, "per_object.csv",
-                                                  str(shapebench.workspace)))  # fmt: skip
+    table = pd.read_csv(
+        client.download_artifacts(run_id, "per_object.csv", str(shapebench.workspace))
+    )
     ok = table[table.status == "ok"]
     assert len(ok) > 0, table.error.tolist()
     assert (ok["posterior_spread"] > 0).all()
@@ -70,8 +99,11 @@ def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
     # report's uncertainty section exists by default; the others draw none, and the samples
     # never change the scores (pictured_samples=0 gives the same cell values).
     (noopt,) = [c for c in cells if c.data.tags["method"] == "msc-noopt"]
-    table = pd.read_csv(client.download_artifacts(noopt.info.run_id, "per_object.csv",
-                                                  str(shapebench.workspace / "noopt")))  # fmt: skip
+    table = pd.read_csv(
+        client.download_artifacts(
+            noopt.info.run_id, "per_object.csv", str(shapebench.workspace / "noopt")
+        )
+    )
     from shapebench.evaluate.pictures import picture_objects
 
     pictured = set(picture_objects(table.object.tolist()))
@@ -90,15 +122,33 @@ def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
 def test_deepsdf_trains_on_sdf_samples_and_completes_or_fails_per_object(shapebench):
     # Five epochs: after one, the tanh output is still negative everywhere and every object
     # fails, which a run reports as an error.
-    res = shapebench("run", "-m", "deepsdf", "-d", "synthetic", *TINY, "-D", "sdf_samples=4000",
-                     *SMALL_NET, "-O", "epochs=5", "-O", "sdf_points=256", "--split", "novel",
-                     "--contexts", "50", "-q")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "deepsdf",
+        "-d",
+        "synthetic",
+        *TINY,
+        "-D",
+        "sdf_samples=4000",
+        *SMALL_NET,
+        "-O",
+        "epochs=5",
+        "-O",
+        "sdf_points=256",
+        "--split",
+        "novel",
+        "--contexts",
+        "50",
+        "-q",
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     cell = shapebench.cell_runs("synthetic-novel")[0]
     client = shapebench.client()
-    table = pd.read_csv(client.download_artifacts(cell.info.run_id, "per_object.csv",
-                                                  str(shapebench.workspace)),
-                        keep_default_na=False)  # fmt: skip
+    table = pd.read_csv(
+        client.download_artifacts(cell.info.run_id, "per_object.csv", str(shapebench.workspace)),
+        keep_default_na=False,
+    )
     assert len(table) == 4
     # A tiny network may still miss the surface of an object: then it fails with the reason.
     for row in table.itertuples():
@@ -106,15 +156,41 @@ def test_deepsdf_trains_on_sdf_samples_and_completes_or_fails_per_object(shapebe
 
 
 def test_pcn_trains_on_complete_clouds_and_returns_its_fine_points(shapebench):
-    res = shapebench("run", "-m", "pcn", "-d", "synthetic", *TINY, "-D", "complete_points=512",
-                     "-O", "feature=32", "-O", "num_coarse=16", "-O", "grid_size=2",
-                     "-O", "target_points=256", "-O", "epochs=1", "-O", "batch_shapes=4",
-                     "--split", "novel", "--contexts", "50,100", "-q")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "pcn",
+        "-d",
+        "synthetic",
+        *TINY,
+        "-D",
+        "complete_points=512",
+        "-O",
+        "feature=32",
+        "-O",
+        "num_coarse=16",
+        "-O",
+        "grid_size=2",
+        "-O",
+        "target_points=256",
+        "-O",
+        "epochs=1",
+        "-O",
+        "batch_shapes=4",
+        "--split",
+        "novel",
+        "--contexts",
+        "50,100",
+        "-q",
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     cells = shapebench.cell_runs("synthetic-novel")
     assert len(cells) == 2 and all(c.data.metrics["failures"] == 0 for c in cells)
-    table = pd.read_csv(shapebench.client().download_artifacts(
-        cells[0].info.run_id, "per_object.csv", str(shapebench.workspace)))  # fmt: skip
+    table = pd.read_csv(
+        shapebench.client().download_artifacts(
+            cells[0].info.run_id, "per_object.csv", str(shapebench.workspace)
+        )
+    )
     assert (table["n_points"] == 64).all()  # 16 coarse points x a 2 x 2 folding grid
     assert len(_training_runs(shapebench)) == 1
 
@@ -123,11 +199,37 @@ def test_occnet_trains_on_sdf_derived_queries_and_meshes_at_the_threshold(shapeb
     # The paper recipe's queries come from the SDF samples (no occupancy samples are built). Ten
     # epochs at lr 3e-3: before that, the logits are above logit(0.2) everywhere, every object
     # fails, and a run reports that as an error.
-    res = shapebench("run", "-m", "occnet", "-d", "synthetic", *TINY, "-D",
-                     "sdf_samples=4000", "-O", "c_dim=16", "-O", "hidden_dim=16",
-                     "-O", "decoder_hidden=16", "-O", "query_points=256", "-O", "epochs=10",
-                     "-O", "lr=0.003", "-O", "batch_shapes=4", "-O", "mesh_resolution=32",
-                     "--split", "novel", "--contexts", "50", "-q")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "occnet",
+        "-d",
+        "synthetic",
+        *TINY,
+        "-D",
+        "sdf_samples=4000",
+        "-O",
+        "c_dim=16",
+        "-O",
+        "hidden_dim=16",
+        "-O",
+        "decoder_hidden=16",
+        "-O",
+        "query_points=256",
+        "-O",
+        "epochs=10",
+        "-O",
+        "lr=0.003",
+        "-O",
+        "batch_shapes=4",
+        "-O",
+        "mesh_resolution=32",
+        "--split",
+        "novel",
+        "--contexts",
+        "50",
+        "-q",
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     sdf = list(shapebench.cache.rglob("training/*.sdf.npz"))
     assert sdf and not [o for d in {p.parent for p in sdf} for o in d.glob("*.occupancy.npz")]

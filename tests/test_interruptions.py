@@ -22,9 +22,27 @@ from shapebench.train.lightning_fit import checkpoint_epochs
 pytestmark = pytest.mark.slow  # every test here starts the CLI or trains
 
 #: A tiny IGR trained long enough (about 0.1 s per epoch) to be interrupted mid-way.
-IGR = ["-m", "igr", "-d", "synthetic", *TINY, "-O", "latent_dim=8", "-O", "width=32",
-       "-O", "depth=2", "-O", "batch_shapes=4", "-O", "surface_points=64",
-       "-O", "mesh_resolution=32", "-O", "opt_steps=5"]  # fmt: skip
+IGR = [
+    "-m",
+    "igr",
+    "-d",
+    "synthetic",
+    *TINY,
+    "-O",
+    "latent_dim=8",
+    "-O",
+    "width=32",
+    "-O",
+    "depth=2",
+    "-O",
+    "batch_shapes=4",
+    "-O",
+    "surface_points=64",
+    "-O",
+    "mesh_resolution=32",
+    "-O",
+    "opt_steps=5",
+]
 
 
 def wait_for(condition: Callable[[], object], timeout: float = 120, what: str = "") -> object:
@@ -132,8 +150,11 @@ def test_sigkill_of_a_run_leaves_no_training_behind_and_the_rerun_trains_once(sh
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     start = time.monotonic()
-    wait_for(lambda: not processes_mentioning(str(sb.workspace)), timeout=10,
-             what="the orphaned training to stop")  # fmt: skip
+    wait_for(
+        lambda: not processes_mentioning(str(sb.workspace)),
+        timeout=10,
+        what="the orphaned training to stop",
+    )
     print(f"orphan gone {time.monotonic() - start:.1f} s after the parent's kill -9")
 
     res = sb(*args)

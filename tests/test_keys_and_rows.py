@@ -38,8 +38,18 @@ def _download(sb, run_id: str, name: str = "per_object.csv") -> pd.DataFrame:
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_max_epochs_is_part_of_the_checkpoint_key_and_the_row(with_example):
     sb = with_example
-    short = sb("run", "-m", "example-template", *RUN, "--contexts", "50", "--split", "novel",
-               "--max-epochs", "3")  # fmt: skip
+    short = sb(
+        "run",
+        "-m",
+        "example-template",
+        *RUN,
+        "--contexts",
+        "50",
+        "--split",
+        "novel",
+        "--max-epochs",
+        "3",
+    )
     assert short.returncode == 0, short.stderr
     plain = sb("run", "-m", "example-template", *RUN, "--contexts", "50", "--split", "novel")
     assert plain.returncode == 0, plain.stderr
@@ -86,6 +96,7 @@ def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
 
 def test_code_digest_follows_the_source(tmp_path, monkeypatch):
     from shapebench.registry import code_digest as cd
+
     pkg = tmp_path / "digest_probe"
     pkg.mkdir()
     (pkg / "__init__.py").write_text("")
@@ -106,6 +117,7 @@ def test_code_digest_does_not_depend_on_where_the_code_lives(tmp_path, monkeypat
     """Two checkouts (or a cluster node and a laptop) with the same code share keys, also when a
     method's package and a shared module it names live under different roots."""
     from shapebench.registry import code_digest as cd
+
     def install(method_root: Path, shared_root: Path) -> str:
         for name in [m for m in sys.modules if m.startswith(("probe_m", "probe_shared"))]:
             sys.modules.pop(name)
@@ -189,8 +201,18 @@ def test_a_sigma_variant_gets_its_own_row(shapebench):
 
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_a_label_names_the_row(shapebench):
-    res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel",
-                     "--label", "gauss-baseline")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "gauss",
+        *RUN,
+        "--contexts",
+        "50",
+        "--split",
+        "novel",
+        "--label",
+        "gauss-baseline",
+    )
     assert res.returncode == 0, res.stderr
     assert (
         shapebench("leaderboard", "-d", "synthetic", "--reference", "gauss-baseline").returncode
@@ -208,8 +230,11 @@ def test_context_normals_are_a_protocol_option_not_a_paper_row(shapebench):
     runs = sb.cell_runs("synthetic-novel")
     by_flag = {r.data.tags["protocol.context_normals"]: r for r in runs}
     assert set(by_flag) == {"True", "False"}
-    with np.load(sb.client().download_artifacts(by_flag["False"].info.run_id, "contexts.npz",
-                                                str(sb.workspace))) as z:  # fmt: skip
+    with np.load(
+        sb.client().download_artifacts(
+            by_flag["False"].info.run_id, "contexts.npz", str(sb.workspace)
+        )
+    ) as z:
         assert "normals" not in z.files  # the default protocol gives points only
     assert sb("leaderboard", "-d", "synthetic", "--reference", "gauss").returncode == 0
     md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
@@ -248,16 +273,29 @@ def test_split_options_keep_the_preprocessing_cache(tmp_path):
     from shapebench_meshes.dataset import MeshFolderOptions
     from shapebench_shapenet.dataset import ShapeNetOptions
 
-    selection = {f.name for f in ShapeNetOptions.__dataclass_fields__.values()
-                 if f.metadata.get("selection")}  # fmt: skip
+    selection = {
+        f.name for f in ShapeNetOptions.__dataclass_fields__.values() if f.metadata.get("selection")
+    }
     assert {"test_fraction", "max_test_per_category", "split_dir", "categories"} <= selection
     assert MeshFolderOptions.__dataclass_fields__["train_fraction"].metadata["selection"]
 
 
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_an_explicitly_requested_empty_split_is_an_error(shapebench):
-    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "-D", "test_per_category=0",
-                     "--split", "novel", "--contexts", "50")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "synthetic",
+        *TINY,
+        "-D",
+        "test_per_category=0",
+        "--split",
+        "novel",
+        "--contexts",
+        "50",
+    )
     assert res.returncode == 2
     assert "split novel of dataset 'synthetic' has no objects" in res.stderr
     assert "Traceback" not in res.stderr
@@ -296,8 +334,9 @@ def test_the_leaderboard_picks_a_data_version(shapebench):
 
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_a_cell_where_every_object_fails_exits_non_zero_with_reasons(shapebench):
-    res = shapebench("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel",
-                     "-O", "sigma=.nan")  # fmt: skip
+    res = shapebench(
+        "run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "novel", "-O", "sigma=.nan"
+    )
     assert res.returncode == 1
     assert "EVERY object failed" in res.stdout
     assert "4 x completion has" in res.stdout and "NaN/inf points" in res.stdout
@@ -318,12 +357,22 @@ def _holm(p: list[float]) -> list[float]:
 def test_failure_rule_and_tied_marks_recomputed_from_the_per_object_tables(with_example):
     sb = with_example
     for extra in ((), ("-O", "sigma=0.05"), ("-O", "sigma=0.011")):
-        assert sb("run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "trained",
-                  *extra).returncode == 0  # fmt: skip
-    assert sb("run", "-m", "example-flaky", *RUN, "--contexts", "50",
-              "--split", "trained").returncode == 0  # fmt: skip
-    assert sb("leaderboard", "-d", "synthetic", "--split", "trained",
-              "--reference", "gauss").returncode == 0  # fmt: skip
+        assert (
+            sb(
+                "run", "-m", "gauss", *RUN, "--contexts", "50", "--split", "trained", *extra
+            ).returncode
+            == 0
+        )
+    assert (
+        sb("run", "-m", "example-flaky", *RUN, "--contexts", "50", "--split", "trained").returncode
+        == 0
+    )
+    assert (
+        sb(
+            "leaderboard", "-d", "synthetic", "--split", "trained", "--reference", "gauss"
+        ).returncode
+        == 0
+    )
     csv = _csv(sb, "synthetic-trained.csv")
     raw = csv[(csv.kind == "raw") & (csv.context == 50)].set_index("label")
     tables = {}
@@ -352,10 +401,18 @@ def test_failure_rule_and_tied_marks_recomputed_from_the_per_object_tables(with_
 
 def test_the_failure_rule_on_a_known_table():
     from shapebench.boards import stats as board_stats
-    rows = [("a", "x", "ok", 1.0), ("a", "y", "ok", 3.0), ("a", "z", "failed", np.nan),
-            ("b", "x", "ok", 2.0), ("b", "y", "failed", np.nan), ("b", "z", "failed", np.nan),
-            ("c", "x", "failed", np.nan), ("c", "y", "failed", np.nan),
-            ("c", "z", "failed", np.nan)]  # fmt: skip
+
+    rows = [
+        ("a", "x", "ok", 1.0),
+        ("a", "y", "ok", 3.0),
+        ("a", "z", "failed", np.nan),
+        ("b", "x", "ok", 2.0),
+        ("b", "y", "failed", np.nan),
+        ("b", "z", "failed", np.nan),
+        ("c", "x", "failed", np.nan),
+        ("c", "y", "failed", np.nan),
+        ("c", "z", "failed", np.nan),
+    ]
     df = pd.DataFrame(rows, columns=["variant", "object", "status", "value"])
     df = df.assign(label=df.variant, context=50, seed=0)
     raw = board_stats.raw_table(board_stats.with_failure_rule(df)).set_index("variant")
@@ -373,19 +430,59 @@ def test_the_paper_column_stands_only_beside_the_unit_diameter_card():
     from shapebench.boards.leaderboard import Board, Row, render_markdown, tidy_csv
     from shapebench.boards.paper import paper_table
 
-    raw = pd.DataFrame([{"variant": "v", "label": "gauss", "context": 50, "mean": 1.0,
-                         "std": 0.5, "mean_ok": 1.0, "std_ok": 0.5, "n": 3, "n_ok": 3,
-                         "failures": 0}])  # fmt: skip
-    sig = pd.DataFrame([{"variant": "v", "context": 50, "best": True, "tied": False,
-                         "p_vs_best": np.nan, "p_holm": np.nan, "n_pairs": 3}])  # fmt: skip
+    raw = pd.DataFrame(
+        [
+            {
+                "variant": "v",
+                "label": "gauss",
+                "context": 50,
+                "mean": 1.0,
+                "std": 0.5,
+                "mean_ok": 1.0,
+                "std_ok": 0.5,
+                "n": 3,
+                "n_ok": 3,
+                "failures": 0,
+            }
+        ]
+    )
+    sig = pd.DataFrame(
+        [
+            {
+                "variant": "v",
+                "context": 50,
+                "best": True,
+                "tied": False,
+                "p_vs_best": np.nan,
+                "p_holm": np.nan,
+                "n_pairs": 3,
+            }
+        ]
+    )
     rows = [Row("v", "gauss", "gauss", "Gauss densification", {})]
-    card = ("metric=chamfer-l2;power=2;reduction=mean;direction=symmetric;halved=False;"
-            "scale=1000.0;frame={};eval_points=30000")  # fmt: skip
+    card = (
+        "metric=chamfer-l2;power=2;reduction=mean;direction=symmetric;halved=False;"
+        "scale=1000.0;frame={};eval_points=30000"
+    )
 
     def board(frame: str) -> Board:
-        return Board("shapenet", "novel", "chamfer-l2", card.format(frame), "msc-noopt", [50],
-                     rows, raw, None, sig, "", paper_table("shapenet", "novel"), "1", "f",
-                     frame=frame)  # fmt: skip
+        return Board(
+            "shapenet",
+            "novel",
+            "chamfer-l2",
+            card.format(frame),
+            "msc-noopt",
+            [50],
+            rows,
+            raw,
+            None,
+            sig,
+            "",
+            paper_table("shapenet", "novel"),
+            "1",
+            "f",
+            frame=frame,
+        )
 
     radius = render_markdown(board("unit-radius"), "cmd", "sqlite:///x")
     diameter = render_markdown(board("unit-diameter"), "cmd", "sqlite:///x")
@@ -444,9 +541,22 @@ def test_training_child_imports_the_same_shapebench_as_its_parent(with_example):
     (shadow / "__main__.py").write_text("raise SystemExit('the shadow copy ran')\n")
     script = Path(sys.executable).parent / "shapebench"
     res = subprocess.run(
-        [str(script), "run", "-m", "example-template", *RUN, "--contexts", "50",
-         "--split", "novel"],
-        cwd=here, env=with_example.env(), capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        [
+            str(script),
+            "run",
+            "-m",
+            "example-template",
+            *RUN,
+            "--contexts",
+            "50",
+            "--split",
+            "novel",
+        ],
+        cwd=here,
+        env=with_example.env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     assert "shadow" not in res.stderr

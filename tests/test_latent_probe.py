@@ -21,8 +21,13 @@ def test_validation_objects_are_held_out_of_every_split(tmp_path):
 
     probe = load_benchmark("latent_probe")
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
-    data = resolve_dataset(get_registry(), "synthetic", settings, None,
-                           {"train_per_category": 40, "test_per_category": 0})  # fmt: skip
+    data = resolve_dataset(
+        get_registry(),
+        "synthetic",
+        settings,
+        None,
+        {"train_per_category": 40, "test_per_category": 0},
+    )
     val = probe.validation_refs(data, 3)
     trained = {c.name for c in data.categories() if c.split == TRAINED}
     assert len({r.id for r in val}) == 3 * len(trained) and {r.category for r in val} == trained
@@ -75,9 +80,23 @@ def test_probe_searches_are_repeatable(shapebench, data_cache):
     trained = shapebench("train", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "-q")
     assert trained.returncode == 0, trained.stderr
     (ckpt,) = (shapebench.workspace / "checkpoints" / "igr").glob("*/last.ckpt")
-    argv = ["-m", "igr", "--checkpoint", str(ckpt), "--train-only", "--objects", "3",
-            "--contexts", "50", "--steps", "5", "--cache-dir", str(data_cache),
-            *TINY, *SMALL_IGR]  # fmt: skip
+    argv = [
+        "-m",
+        "igr",
+        "--checkpoint",
+        str(ckpt),
+        "--train-only",
+        "--objects",
+        "3",
+        "--contexts",
+        "50",
+        "--steps",
+        "5",
+        "--cache-dir",
+        str(data_cache),
+        *TINY,
+        *SMALL_IGR,
+    ]
     probe = load_benchmark("latent_probe")
     first = probe.main(argv)
     torch.manual_seed(12345)  # work before the second run leaves the generator elsewhere

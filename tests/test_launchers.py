@@ -17,8 +17,16 @@ from shapebench.sweeps.launchers import worker_argv
 
 def test_worker_command_line_replaces_the_launcher_options():
     argv = ["s.yaml", "--launcher", "local", "-j", "3", "-q", "--jobs=2", "-j4", "--seed", "1"]
-    assert worker_argv(argv, 1) == ["s.yaml", "-q", "--seed", "1", "--launcher", "inline",
-                                    "--worker", "1"]  # fmt: skip
+    assert worker_argv(argv, 1) == [
+        "s.yaml",
+        "-q",
+        "--seed",
+        "1",
+        "--launcher",
+        "inline",
+        "--worker",
+        "1",
+    ]
 
 
 def cell_claimed(sb) -> bool:
@@ -55,12 +63,14 @@ def inline_board(tmp_path_factory, data_cache):
 
 def _assert_each_cell_once_and_same_board(sb, expected, out):
     runs = cell_runs(sb)
-    per_cell = Counter((r.data.tags["method"], r.data.tags["split"],
-                        r.data.tags["context_size"]) for r in runs)  # fmt: skip
+    per_cell = Counter(
+        (r.data.tags["method"], r.data.tags["split"], r.data.tags["context_size"]) for r in runs
+    )
     assert len(per_cell) == 8 and set(per_cell.values()) == {1}
     assert all_runs(sb, "RUNNING") == []
-    training = [r for r in all_runs(sb, "FINISHED")
-                if r.data.tags.get("shapebench.kind") == "training"]  # fmt: skip
+    training = [
+        r for r in all_runs(sb, "FINISHED") if r.data.tags.get("shapebench.kind") == "training"
+    ]
     assert len(training) == 1
     got = leaderboard(sb, out)
     numeric = score_columns(expected)  # timings differ between runs; the scores may not

@@ -25,8 +25,21 @@ def _per_object(sb, method: str, k: int) -> pd.DataFrame:
 def test_leaderboard_raw_and_normalised_from_mlflow(with_example):
     sb = with_example
     for method in ("gauss", "example-sphere"):
-        assert sb("run", "-m", method, "-d", "synthetic", *TINY, *TINY_CONTEXTS, "-q",
-                  "--split", "novel").returncode == 0  # fmt: skip
+        assert (
+            sb(
+                "run",
+                "-m",
+                method,
+                "-d",
+                "synthetic",
+                *TINY,
+                *TINY_CONTEXTS,
+                "-q",
+                "--split",
+                "novel",
+            ).returncode
+            == 0
+        )
     res = sb("leaderboard", "--dataset", "synthetic", "--split", "novel", "--reference", "gauss")
     assert res.returncode == 0, res.stderr
     md = (sb.workspace / "leaderboards" / "synthetic-novel.md").read_text()
@@ -59,8 +72,22 @@ def test_leaderboard_raw_and_normalised_from_mlflow(with_example):
 
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_leaderboard_without_reference_runs_says_so(shapebench):
-    assert shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50", "-q",
-                      "--split", "novel").returncode == 0  # fmt: skip
+    assert (
+        shapebench(
+            "run",
+            "-m",
+            "gauss",
+            "-d",
+            "synthetic",
+            *TINY,
+            "--contexts",
+            "50",
+            "-q",
+            "--split",
+            "novel",
+        ).returncode
+        == 0
+    )
     res = shapebench("leaderboard", "--dataset", "synthetic")  # default reference: msc-noopt
     assert res.returncode == 0, res.stderr
     md = (shapebench.workspace / "leaderboards" / "synthetic-novel.md").read_text()
@@ -75,11 +102,21 @@ def test_leaderboard_without_runs_is_a_clear_error(shapebench):
 
 
 def _log_cell(client, exp_id: str, method: str, card: str) -> None:
-    run = client.create_run(exp_id, tags={
-        "shapebench.kind": "cell", "method": method, "method.display_name": method,
-        "dataset": "synthetic", "dataset.fingerprint": "f", "context_size": "50", "seed": "0",
-        "card.chamfer-l2": card, "variant.key": method, "variant.label": method,
-    })  # fmt: skip
+    run = client.create_run(
+        exp_id,
+        tags={
+            "shapebench.kind": "cell",
+            "method": method,
+            "method.display_name": method,
+            "dataset": "synthetic",
+            "dataset.fingerprint": "f",
+            "context_size": "50",
+            "seed": "0",
+            "card.chamfer-l2": card,
+            "variant.key": method,
+            "variant.label": method,
+        },
+    )
     client.set_terminated(run.info.run_id)
 
 
@@ -102,14 +139,27 @@ def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
     from shapebench.boards.leaderboard import _rows
 
     def run(key: str, seed: int, start: int, ckpt: str) -> dict:
-        return {"variant.key": key, "_label": key, "method": key, "method.display_name": key,
-                "variant.overrides": "{}", "method.code": "c0de", "checkpoint_key": ckpt,
-                "seed": str(seed), "start": start}  # fmt: skip
+        return {
+            "variant.key": key,
+            "_label": key,
+            "method": key,
+            "method.display_name": key,
+            "variant.overrides": "{}",
+            "method.code": "c0de",
+            "checkpoint_key": ckpt,
+            "seed": str(seed),
+            "start": start,
+        }
 
-    runs = pd.DataFrame([
-        run("igr", 1, 1, "k1-old"), run("igr", 0, 2, "k0"), run("igr", 1, 3, "k1"),
-        run("igr", 2, 4, "k2"), run("gauss", 0, 5, ""),
-    ])  # fmt: skip
+    runs = pd.DataFrame(
+        [
+            run("igr", 1, 1, "k1-old"),
+            run("igr", 0, 2, "k0"),
+            run("igr", 1, 3, "k1"),
+            run("igr", 2, 4, "k2"),
+            run("gauss", 0, 5, ""),
+        ]
+    )
     rows = {r.label: r for r in _rows(runs)}
     # seed order, and the newest run of a seed (a --force rerun) names its checkpoint
     assert rows["igr"].seeds == (0, 1, 2)
@@ -125,8 +175,14 @@ def test_splits_come_in_the_order_the_dataset_declares(tmp_path):
 
     settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path, "quick", tmp_path)
     tracker = Tracker(settings)
-    for name in ("synthetic-novel", "synthetic-extra", "synthetic-trained", "synthetic-train",
-                 "gone-novel", "gone-trained"):  # fmt: skip
+    for name in (
+        "synthetic-novel",
+        "synthetic-extra",
+        "synthetic-trained",
+        "synthetic-train",
+        "gone-novel",
+        "gone-trained",
+    ):
         tracker.experiment_id(name)
     assert splits_with_runs(tracker, "synthetic") == ["trained", "novel", "extra"]
     assert splits_with_runs(tracker, "gone") == ["trained", "novel"]

@@ -14,8 +14,19 @@ def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
     for i, contexts in enumerate(("50", "50,100")):  # the two jobs share the cell k=50
         job = type(sb)(tmp_path / f"job{i}", sb.cache)
         job.workspace.mkdir()
-        res = job("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
-                  "--contexts", contexts, "-q")  # fmt: skip
+        res = job(
+            "run",
+            "-m",
+            "gauss",
+            "-d",
+            "synthetic",
+            *TINY,
+            "--split",
+            "novel",
+            "--contexts",
+            contexts,
+            "-q",
+        )
         assert res.returncode == 0, res.stderr[-3000:]
         jobs.append(job)
 
@@ -35,8 +46,9 @@ def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
     # scores of that key differ by more.
     from shapebench.api.protocol import SCORE_RTOL
 
-    (k50,) = [r for r in jobs[1].cell_runs("synthetic-novel")
-              if r.data.tags["context_size"] == "50"]  # fmt: skip
+    (k50,) = [
+        r for r in jobs[1].cell_runs("synthetic-novel") if r.data.tags["context_size"] == "50"
+    ]
     mean = k50.data.metrics["chamfer-l2.mean"]
     source = jobs[1].client()
     source.log_metric(k50.info.run_id, "chamfer-l2.mean", mean * (1 + SCORE_RTOL / 10), step=50)
@@ -50,11 +62,21 @@ def test_merge_brings_per_job_stores_together_once(shapebench, tmp_path):
 
     # The merged store is a store like any other: its leaderboard reads the copied artifacts,
     # and a run in it reuses the merged cells.
-    board = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--reference", "gauss",
-               "--out", str(tmp_path / "boards"))  # fmt: skip
+    board = sb(
+        "leaderboard",
+        "-d",
+        "synthetic",
+        "--split",
+        "novel",
+        "--reference",
+        "gauss",
+        "--out",
+        str(tmp_path / "boards"),
+    )
     assert board.returncode == 0, board.stderr[-3000:]
-    rerun = sb("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
-               "--contexts", "50,100")  # fmt: skip
+    rerun = sb(
+        "run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel", "--contexts", "50,100"
+    )
     assert rerun.returncode == 0 and " new " not in rerun.stdout
 
 
@@ -70,8 +92,21 @@ def test_merged_cells_name_the_target_stores_training(shapebench, tmp_path):
     sb = shapebench
 
     def igr(job, contexts: str):
-        res = job("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split",
-                  "novel", "--contexts", contexts, "-q", "--retrain")  # fmt: skip
+        res = job(
+            "run",
+            "-m",
+            "igr",
+            "-d",
+            "synthetic",
+            *TINY,
+            *SMALL_IGR,
+            "--split",
+            "novel",
+            "--contexts",
+            contexts,
+            "-q",
+            "--retrain",
+        )
         assert res.returncode == 0, res.stderr[-3000:]
 
     jobs = []
@@ -91,8 +126,9 @@ def test_merged_cells_name_the_target_stores_training(shapebench, tmp_path):
     assert sorted(r.data.tags["context_size"] for r in cells) == ["100", "50"]
     assert {r.data.tags["training_run_id"] for r in cells} == {training.info.run_id}
 
-    board = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--out",
-               str(tmp_path / "boards"))  # fmt: skip
+    board = sb(
+        "leaderboard", "-d", "synthetic", "--split", "novel", "--out", str(tmp_path / "boards")
+    )
     assert board.returncode == 0, board.stderr[-3000:]
     table = (tmp_path / "boards" / "synthetic-novel.md").read_text()
     igr_row = next(line for line in table.splitlines() if line.startswith("| IGR"))

@@ -57,9 +57,20 @@ def _contexts(n: int = 200, normals: bool = False, count: int = 2) -> list[Conte
 
 def _tiny_msc(cls: type[MSCNoOpt] = MSC, **overrides) -> MSCNoOpt:
     """An MSC method with a tiny untrained module, as load_checkpoint would leave it."""
-    method = cls(cls.Options(latent_dim=8, width=32, depth=2, encoder_width=16, encoder_layers=1,
-                             opt_steps=3, mesh_resolution=16, max_target=64, lr_halve_every=10,
-                             **overrides))  # fmt: skip
+    method = cls(
+        cls.Options(
+            latent_dim=8,
+            width=32,
+            depth=2,
+            encoder_width=16,
+            encoder_layers=1,
+            opt_steps=3,
+            mesh_resolution=16,
+            max_target=64,
+            lr_halve_every=10,
+            **overrides,
+        )
+    )
     torch.manual_seed(0)
     method.module = method.build_module(1).eval()
     # Make the encoder's votes non-zero, so that an input it read would move the code.
@@ -89,8 +100,11 @@ def test_msc_encoder_has_no_normal_input_and_completes_points_only_contexts():
 def test_options_that_read_normals_fail_clearly_without_them():
     with pytest.raises(ValueError, match="encoder_input=normals"):
         _tiny_msc(MSCNoOpt, encoder_input="normals").encode(_contexts())
-    igr = IGR(IGR.Options(recipe="official", latent_dim=8, width=32, depth=2, test_normals=True,
-                          opt_steps=1))  # fmt: skip
+    igr = IGR(
+        IGR.Options(
+            recipe="official", latent_dim=8, width=32, depth=2, test_normals=True, opt_steps=1
+        )
+    )
     igr.module = igr.build_module(1)
     igr.device = torch.device("cpu")
     with pytest.raises(ValueError, match="test_normals=true"):
@@ -107,8 +121,9 @@ def test_stack_contexts_copes_with_missing_normals():
 
 @pytest.mark.parametrize("recipe", ["paper", "official"])
 def test_auto_decoders_share_one_test_time_optimiser_per_recipe(recipe):
-    resolved = {name: cls(cls.Options(recipe=recipe)).options
-                for name, cls in AUTO_DECODERS.items()}  # fmt: skip
+    resolved = {
+        name: cls(cls.Options(recipe=recipe)).options for name, cls in AUTO_DECODERS.items()
+    }
     settings = {name: tuple(getattr(o, k) for k in OPTIMISER) for name, o in resolved.items()}
     rules = {(s[0], s[2]) for s in settings.values()}
     assert len(rules) == 1  # the same rule and step count for the three
@@ -169,14 +184,29 @@ def test_a_fixed_eikonal_count_draws_its_base_points_once():
     assert offsurface_samples(surface, "official", count=80).shape == (1, 80 + 10, 3)
 
 
-@pytest.mark.parametrize(("samples", "mode", "seen"), [
-    (0, "paper", 50), (None, "paper", 50), (0, "official", 50 + 50 // 8),
-    (300, "paper", 300), (300, "official", 300 + 300 // 8),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("samples", "mode", "seen"),
+    [
+        (0, "paper", 50),
+        (None, "paper", 50),
+        (0, "official", 50 + 50 // 8),
+        (300, "paper", 300),
+        (300, "official", 300 + 300 // 8),
+    ],
+)
 def test_igr_completion_evaluates_the_eikonal_term_on_the_option_s_count(samples, mode, seen):
     # The official recipe's count is 0 (one per context point); ``offsurface`` is explicit.
-    method = IGR(IGR.Options(recipe="official", latent_dim=8, width=32, depth=2, opt_steps=2,
-                             offsurface=mode, opt_eikonal_samples=samples))  # fmt: skip
+    method = IGR(
+        IGR.Options(
+            recipe="official",
+            latent_dim=8,
+            width=32,
+            depth=2,
+            opt_steps=2,
+            offsurface=mode,
+            opt_eikonal_samples=samples,
+        )
+    )
     method.module = method.build_module(1).eval()
     method.device = torch.device("cpu")
     sizes = []
@@ -242,9 +272,11 @@ class _Blobs(Dataset):
 
     def __init__(self) -> None:
         super().__init__(None, Path("."))
-        self.meshes = [trimesh.creation.icosphere(2, radius=0.5),
-                       trimesh.creation.box((0.8, 0.5, 0.3)),
-                       trimesh.creation.capsule(0.6, 0.2)]  # fmt: skip
+        self.meshes = [
+            trimesh.creation.icosphere(2, radius=0.5),
+            trimesh.creation.box((0.8, 0.5, 0.3)),
+            trimesh.creation.capsule(0.6, 0.2),
+        ]
 
     def categories(self) -> list[Category]:
         return [Category("blob", TRAINED)]
@@ -264,8 +296,13 @@ class _Blobs(Dataset):
             extra["occupancy"] = occupancy_samples(mesh, 2000, rng)
         if Supervision.COMPLETE_POINTS in need:
             extra["complete_points"] = mesh.sample(800).astype(np.float32)
-        return ObjectData(ref, pts.astype(np.float32), mesh.face_normals[faces].astype(np.float32),
-                          pts.astype(np.float32), extra)  # fmt: skip
+        return ObjectData(
+            ref,
+            pts.astype(np.float32),
+            mesh.face_normals[faces].astype(np.float32),
+            pts.astype(np.float32),
+            extra,
+        )
 
 
 def _first_batch(method) -> dict[str, torch.Tensor]:
@@ -280,11 +317,15 @@ SAMPLE_SIZES = {
     "igr": (dict(surface_points=40), {"points": (2, 40, 3), "normals": (2, 40, 3)}),
     "msc": (dict(surface_points=40), {"points": (2, 40, 3)}),
     "deepsdf": (dict(sdf_points=30), {"sdf": (2, 30, 4), "points": (2, 1, 3)}),
-    "occnet": (dict(surface_points=20, query_points=30),
-               {"points": (2, 20, 3), "occupancy": (2, 30, 4)}),
-    "pcn": (dict(surface_points=20, target_points=50),
-            {"points": (2, 20, 3), "complete": (2, 50, 3)}),
-}  # fmt: skip
+    "occnet": (
+        dict(surface_points=20, query_points=30),
+        {"points": (2, 20, 3), "occupancy": (2, 30, 4)},
+    ),
+    "pcn": (
+        dict(surface_points=20, target_points=50),
+        {"points": (2, 20, 3), "complete": (2, 50, 3)},
+    ),
+}
 
 
 @pytest.mark.parametrize("name", sorted(SAMPLE_SIZES))
@@ -306,8 +347,9 @@ def test_modules_take_the_options_and_rebuild_them_from_their_hyperparameters(na
     module = method.build_module(3)
     assert module.options == method.options and module.n_shapes == 3
     saved = dict(module.hparams)
-    assert all(isinstance(v, (int, float, str, bool, list, tuple, type(None)))
-               for v in saved.values())  # fmt: skip
+    assert all(
+        isinstance(v, (int, float, str, bool, list, tuple, type(None))) for v in saved.values()
+    )
     again = method.Module(**saved)
     assert again.options == method.options and again.n_shapes == 3
     # A checkpoint written before the modules took their options: hyper-parameters named as the
@@ -341,14 +383,24 @@ def test_a_sixth_trained_method_is_one_method_class_and_one_module(tmp_path, mon
 
     monkeypatch.syspath_prepend(str(tmp_path))
     _docs_example(tmp_path)
-    probe = ("import sys; import shapebench_pointsdf.method; "
-             "assert 'torch' not in sys.modules, 'method.py imports torch'")  # fmt: skip
+    probe = (
+        "import sys; import shapebench_pointsdf.method; "
+        "assert 'torch' not in sys.modules, 'method.py imports torch'"
+    )
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
     subprocess.run([sys.executable, "-c", probe], check=True, env=env)
     from shapebench_pointsdf.method import PointSDF
 
-    method = PointSDF(PointSDF.Options(epochs=30, batch_shapes=3, surface_points=100,
-                                       sdf_points=256, lr=3e-3, mesh_resolution=32))  # fmt: skip
+    method = PointSDF(
+        PointSDF.Options(
+            epochs=30,
+            batch_shapes=3,
+            surface_points=100,
+            sdf_points=256,
+            lr=3e-3,
+            mesh_resolution=32,
+        )
+    )
     trainer = TrainerOptions(accelerator="cpu", devices=1, seed=0)
     ctx = TrainingContext(_Blobs(), trainer, tmp_path / "train", "", quiet=True)
     path = method.fit(ctx)

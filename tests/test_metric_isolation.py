@@ -63,8 +63,22 @@ def crashy_site(tmp_path_factory) -> Path:
 def test_a_crashing_metric_spares_the_other_metrics_and_is_computed_again(shapebench, crashy_site):
     sb = shapebench
     sb.sites = (crashy_site,)
-    args = ["run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel", "--contexts",
-            "50", "--metric", "chamfer-l2", "--metric", "crashy"]  # fmt: skip
+    args = [
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "synthetic",
+        *TINY,
+        "--split",
+        "novel",
+        "--contexts",
+        "50",
+        "--metric",
+        "chamfer-l2",
+        "--metric",
+        "crashy",
+    ]
     res = sb(*args)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "a metric raised" in res.stdout
@@ -76,8 +90,13 @@ def test_a_crashing_metric_spares_the_other_metrics_and_is_computed_again(shapeb
     assert run.data.metrics["failures"] == 0  # the method did not fail
     assert run.data.metrics["chamfer-l2.mean"] > 0  # the other metric stands
     assert run.data.metrics["crashy.errors"] == run.data.metrics["n_objects"]
-    table = pd.read_csv(io.StringIO(Path(sb.client().download_artifacts(
-        run.info.run_id, "per_object.csv", str(sb.workspace))).read_text()))  # fmt: skip
+    table = pd.read_csv(
+        io.StringIO(
+            Path(
+                sb.client().download_artifacts(run.info.run_id, "per_object.csv", str(sb.workspace))
+            ).read_text()
+        )
+    )
     assert (table["status"] == "ok").all() and table["chamfer-l2"].notna().all()
     assert (
         table["crashy"].isna().all() and table["metric_error.crashy"].str.contains("exploded").all()
@@ -90,11 +109,29 @@ def test_a_crashing_metric_spares_the_other_metrics_and_is_computed_again(shapeb
     assert 'raise RuntimeError("crashy exploded on "' in again.stdout
 
     # The chamfer leaderboard uses the cell; a crashy one leaves it out and says why.
-    board = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--reference", "gauss",
-               "--out", str(sb.workspace / "boards"))  # fmt: skip
+    board = sb(
+        "leaderboard",
+        "-d",
+        "synthetic",
+        "--split",
+        "novel",
+        "--reference",
+        "gauss",
+        "--out",
+        str(sb.workspace / "boards"),
+    )
     assert board.returncode == 0, board.stderr[-3000:]
     assert "gauss" in (sb.workspace / "boards" / "synthetic-novel.md").read_text()
-    crashy = sb("leaderboard", "-d", "synthetic", "--split", "novel", "--metric", "crashy",
-                "--out", str(sb.workspace / "boards"))  # fmt: skip
+    crashy = sb(
+        "leaderboard",
+        "-d",
+        "synthetic",
+        "--split",
+        "novel",
+        "--metric",
+        "crashy",
+        "--out",
+        str(sb.workspace / "boards"),
+    )
     assert crashy.returncode != 0
     assert "raised on some object" in crashy.stdout + crashy.stderr

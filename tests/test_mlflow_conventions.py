@@ -41,8 +41,11 @@ def store(tmp_path_factory, data_cache) -> Shapebench:
 def _runs(sb: Shapebench, kind: str):
     client = sb.client()
     exp = client.get_experiment_by_name("synthetic-novel")
-    return client.search_runs([exp.experiment_id], f"tags.`shapebench.kind` = '{kind}'",
-                              order_by=["attributes.start_time ASC"])  # fmt: skip
+    return client.search_runs(
+        [exp.experiment_id],
+        f"tags.`shapebench.kind` = '{kind}'",
+        order_by=["attributes.start_time ASC"],
+    )
 
 
 @pytest.mark.slow
@@ -76,8 +79,11 @@ def test_parent_metrics_are_its_cells_with_step_context_size(store):
     cells = _runs(store, "cell")
     assert len(parents) == 3 and len(cells) == 6
     for parent in parents:
-        children = {int(c.data.tags["context_size"]): c for c in cells
-                    if c.data.tags["mlflow.parentRunId"] == parent.info.run_id}  # fmt: skip
+        children = {
+            int(c.data.tags["context_size"]): c
+            for c in cells
+            if c.data.tags["mlflow.parentRunId"] == parent.info.run_id
+        }
         assert sorted(children) == [50, 100]
         history = client.get_metric_history(parent.info.run_id, "chamfer-l2.mean")
         assert sorted((m.step, m.value) for m in history) == [
@@ -93,8 +99,11 @@ def test_parent_metrics_are_its_cells_with_step_context_size(store):
 @pytest.mark.slow
 def test_run_names_tell_variants_and_forced_reruns_apart(store):
     names = [p.info.run_name for p in _runs(store, "parent")]
-    assert names == ["gauss on synthetic/novel", "gauss[sigma=0.05] on synthetic/novel",
-                     "gauss on synthetic/novel (forced rerun)"]  # fmt: skip
+    assert names == [
+        "gauss on synthetic/novel",
+        "gauss[sigma=0.05] on synthetic/novel",
+        "gauss on synthetic/novel (forced rerun)",
+    ]
     # One chart color per variant (a forced rerun keeps its variant's), all distinct.
     colors = [p.data.tags["mlflow.runColor"] for p in _runs(store, "parent")]
     assert colors[0] == colors[2] != colors[1]
@@ -117,7 +126,11 @@ def test_experiments_have_a_kind_a_view_and_no_default_or_mlruns(store):
     # The chart view opens on the primary metric against the step (= context size), log x.
     first = view["compareRunCharts"][0]
     assert (first["type"], first["metricKey"], first["xAxisKey"], first["xAxisScaleType"]) == (
-        "LINE", "chamfer-l2.mean", "step", "log")  # fmt: skip
+        "LINE",
+        "chamfer-l2.mean",
+        "step",
+        "log",
+    )
     assert first["metricSectionId"] == view["compareRunSections"][0]["uuid"]
     assert not (store.workspace / "mlruns").exists()
 

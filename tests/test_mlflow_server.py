@@ -18,13 +18,28 @@ def mlflow_server(tmp_path):
     port = free_port()
     env = dict(os.environ, MLFLOW_SERVER_ENABLE_JOB_EXECUTION="false")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "mlflow", "server",
-         "--backend-store-uri", f"sqlite:///{tmp_path / 'server.db'}",
-         "--artifacts-destination", str(tmp_path / "server-artifacts"),
-         "--host", "127.0.0.1", "--port", str(port), "--workers", "1"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "mlflow",
+            "server",
+            "--backend-store-uri",
+            f"sqlite:///{tmp_path / 'server.db'}",
+            "--artifacts-destination",
+            str(tmp_path / "server-artifacts"),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--workers",
+            "1",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
         start_new_session=True,
-    )  # fmt: skip
+    )
     uri = f"http://127.0.0.1:{port}"
     try:
         wait_http(uri + "/health", proc)
@@ -35,8 +50,21 @@ def mlflow_server(tmp_path):
 
 def test_run_and_leaderboard_over_http(shapebench, mlflow_server):
     uri = mlflow_server
-    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50",
-                     "--split", "novel", "--tracking-uri", uri, "-q")  # fmt: skip
+    res = shapebench(
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "synthetic",
+        *TINY,
+        "--contexts",
+        "50",
+        "--split",
+        "novel",
+        "--tracking-uri",
+        uri,
+        "-q",
+    )
     assert res.returncode == 0, res.stderr
     assert f"Runs are in {uri}" in res.stdout
     assert not (shapebench.workspace / "mlflow.db").exists()  # nothing went to the local store
@@ -50,8 +78,9 @@ def test_run_and_leaderboard_over_http(shapebench, mlflow_server):
     # Artifacts went through the server's artifact proxy and come back from it.
     assert {a.path for a in client.list_artifacts(runs[0].info.run_id)} >= {"per_object.csv"}
 
-    res = shapebench("leaderboard", "-d", "synthetic", "--tracking-uri", uri, "--reference",
-                     "gauss")  # fmt: skip
+    res = shapebench(
+        "leaderboard", "-d", "synthetic", "--tracking-uri", uri, "--reference", "gauss"
+    )
     assert res.returncode == 0, res.stderr
     md = (shapebench.workspace / "leaderboards" / "synthetic-novel.md").read_text()
     assert uri in md and "| Gauss densification (`gauss`) |" in md

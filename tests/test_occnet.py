@@ -51,8 +51,15 @@ def test_occupancy_of_a_sphere_a_box_and_a_mesh_with_a_hole():
 @pytest.mark.parametrize("decoder", ["batchnorm", "cbatchnorm"])
 def test_a_few_training_steps_lower_the_bce(decoder):
     torch.manual_seed(0)
-    options = OccNet.Options(c_dim=32, hidden_dim=32, decoder=decoder, decoder_hidden=32,
-                             lr=1e-3, input_points=300, input_noise=0.005)  # fmt: skip
+    options = OccNet.Options(
+        c_dim=32,
+        hidden_dim=32,
+        decoder=decoder,
+        decoder_hidden=32,
+        lr=1e-3,
+        input_points=300,
+        input_noise=0.005,
+    )
     module = OccNet(options).build_module(0)
     assert isinstance(module, OccNetModule) and module.options.decoder == decoder
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.6)
@@ -93,8 +100,13 @@ class _OneMesh(Dataset):
             extra["sdf"] = sdf_samples(self.mesh, 20_000, rng)
         if Supervision.OCCUPANCY_SAMPLES in need:
             extra["occupancy"] = occupancy_samples(self.mesh, 20_000, rng)
-        return ObjectData(ref, pts.astype(np.float32),
-                          self.mesh.face_normals[faces].astype(np.float32), pts, extra)  # fmt: skip
+        return ObjectData(
+            ref,
+            pts.astype(np.float32),
+            self.mesh.face_normals[faces].astype(np.float32),
+            pts,
+            extra,
+        )
 
 
 def _inside_fraction(recipe: str, tmp_path: Path) -> float:

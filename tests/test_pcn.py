@@ -46,9 +46,17 @@ def _sphere(n: int, seed: int) -> torch.Tensor:
 @pytest.mark.slow  # trains PCN: about a minute
 def test_training_lowers_the_loss_and_completion_beats_the_raw_context():
     torch.manual_seed(1)
-    options = PCN.Options(feature=64, num_coarse=64, grid_size=2, grid_scale=0.05, lr=1e-3,
-                          lr_decay=0.7, lr_decay_steps=1000, alpha_steps=(0, 0, 0),
-                          context_sizes=(50,))  # fmt: skip
+    options = PCN.Options(
+        feature=64,
+        num_coarse=64,
+        grid_size=2,
+        grid_scale=0.05,
+        lr=1e-3,
+        lr_decay=0.7,
+        lr_decay_steps=1000,
+        alpha_steps=(0, 0, 0),
+        context_sizes=(50,),
+    )
     module = PCNModule(options)
     target = _sphere(512, 2)[None]
     context = _sphere(50, 3)[None]

@@ -79,8 +79,10 @@ def test_object_picture_draws_context_completion_and_ground_truth_from_each_view
     assert len(fig.axes) == len(VIEWS) * 3
     titles = [ax.get_title() for ax in fig.axes[:3]]
     assert titles == ["context (100 pts)", "completion", "ground truth"]
-    drawn = [sum(len(c.get_offsets()) for c in ax.collections if isinstance(c, PathCollection))
-             for ax in fig.axes]  # fmt: skip
+    drawn = [
+        sum(len(c.get_offsets()) for c in ax.collections if isinstance(c, PathCollection))
+        for ax in fig.axes
+    ]
     # Each panel holds its cloud (large ones subsampled to MAX_POINTS), in every view.
     assert drawn == [100, pictures.MAX_POINTS, pictures.MAX_POINTS] * len(VIEWS)
     for ax in fig.axes:  # nothing blank: every panel has more than one colour
@@ -140,8 +142,12 @@ def test_qualitative_grid_is_methods_by_context_sizes():
     png = png_bytes(fig)
     assert not is_blank(png)
     grid = np.array(fig.axes).reshape(len(rows) + 1, len(contexts) + 1)
-    assert [ax.get_title() for ax in grid[0]] == ["50 points", "100 points", "300 points",
-                                                  "ground truth"]  # fmt: skip
+    assert [ax.get_title() for ax in grid[0]] == [
+        "50 points",
+        "100 points",
+        "300 points",
+        "ground truth",
+    ]
     assert [grid[r, 0].get_ylabel() for r in range(3)] == ["context", "gauss", "msc"]
 
     def points(ax) -> int:

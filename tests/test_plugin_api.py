@@ -27,8 +27,19 @@ from shapebench.registry.discovery import PluginWarning, discover
 from shapebench.registry.resolve import resolve_metrics
 
 EXAMPLE = ROOT / "docs" / "examples" / "shapebench-hausdorff"
-PLUGIN_API = ["Method", "Metric", "MetricCard", "hookimpl", "Context", "Completion", "ObjectData",
-              "Supervision", "Dataset", "MeshDataset", "UNIT_SPHERE_FRAME"]  # fmt: skip
+PLUGIN_API = [
+    "Method",
+    "Metric",
+    "MetricCard",
+    "hookimpl",
+    "Context",
+    "Completion",
+    "ObjectData",
+    "Supervision",
+    "Dataset",
+    "MeshDataset",
+    "UNIT_SPHERE_FRAME",
+]
 
 
 # -- top-level exports -----------------------------------------------------------------------
@@ -74,8 +85,11 @@ def test_api_reference_names_every_field_and_allowed_value():
             assert f"| `{field}` |" in text, (cls.__name__, field)
     for value in ("'max'", "'fraction'", "'harmonic-mean'", "'gt->pred'"):
         assert f"| `{value}` |" in text
-    for hook in ("shapebench_register_methods", "shapebench_register_datasets",
-                 "shapebench_register_metrics"):  # fmt: skip
+    for hook in (
+        "shapebench_register_methods",
+        "shapebench_register_datasets",
+        "shapebench_register_metrics",
+    ):
         assert f"### `{hook}(register: Register) -> None`" in text
 
 
@@ -91,8 +105,11 @@ def test_apidoc_check_fails_on_a_stale_file(tmp_path, capsys):
 def test_plugins_md_shows_the_example_files_as_they_are():
     """Each file of the metric example appears in docs/plugins.md verbatim."""
     doc = (ROOT / "docs" / "plugins.md").read_text().split("## A complete metric plugin")[1]
-    for rel in ("pyproject.toml", "shapebench_hausdorff/plugin.py",
-                "shapebench_hausdorff/metric.py"):  # fmt: skip
+    for rel in (
+        "pyproject.toml",
+        "shapebench_hausdorff/plugin.py",
+        "shapebench_hausdorff/metric.py",
+    ):
         block = re.search(rf"`{re.escape(rel)}`:\n\n```\w*\n(.*?)```", doc, re.DOTALL)
         assert block, f"docs/plugins.md has no block for {rel}"
         assert block.group(1) == (EXAMPLE / rel).read_text(), f"{rel} differs from the docs"
@@ -112,34 +129,68 @@ def test_plugins_md_card_table_lists_every_field_and_allowed_value():
 
 
 def _card(**changes) -> MetricCard:
-    base = MetricCard(metric="m", power=1, reduction="mean", direction="symmetric", halved=False,
-                      scale=1.0, frame=UNIT_SPHERE_FRAME, eval_points=30000)  # fmt: skip
+    base = MetricCard(
+        metric="m",
+        power=1,
+        reduction="mean",
+        direction="symmetric",
+        halved=False,
+        scale=1.0,
+        frame=UNIT_SPHERE_FRAME,
+        eval_points=30000,
+    )
     return replace(base, **changes)
 
 
 HAUSDORFF = _card(metric="hausdorff", reduction="max", combine="max", scale=100.0)
-FSCORE_002 = _card(metric="fscore-0.02", reduction="fraction", threshold=0.02,
-                   combine="harmonic-mean", higher_is_better=True)  # fmt: skip
-NORMAL_CONSISTENCY = _card(metric="normal-consistency", power=0, combine="mean",
-                           quantity="|cos| between the normals of nearest neighbours",
-                           higher_is_better=True)  # fmt: skip
+FSCORE_002 = _card(
+    metric="fscore-0.02",
+    reduction="fraction",
+    threshold=0.02,
+    combine="harmonic-mean",
+    higher_is_better=True,
+)
+NORMAL_CONSISTENCY = _card(
+    metric="normal-consistency",
+    power=0,
+    combine="mean",
+    quantity="|cos| between the normals of nearest neighbours",
+    higher_is_better=True,
+)
 
 
 @pytest.mark.parametrize(
     ("card", "text"),
     [
-        (HAUSDORFF, "hausdorff: Euclidean NN distances, max per set, max of both directions; "
-                    "shown x100;"),
-        (FSCORE_002, "fscore-0.02: Euclidean NN distances, fraction below 0.02 per set, harmonic "
-                     "mean of both directions; higher is better; shown x1;"),
-        (NORMAL_CONSISTENCY, "normal-consistency: |cos| between the normals of nearest "
-                             "neighbours, mean per set, mean of both directions; higher is better"),
+        (
+            HAUSDORFF,
+            "hausdorff: Euclidean NN distances, max per set, max of both directions; shown x100;",
+        ),
+        (
+            FSCORE_002,
+            "fscore-0.02: Euclidean NN distances, fraction below 0.02 per set, harmonic "
+            "mean of both directions; higher is better; shown x1;",
+        ),
+        (
+            NORMAL_CONSISTENCY,
+            "normal-consistency: |cos| between the normals of nearest "
+            "neighbours, mean per set, mean of both directions; higher is better",
+        ),
         (_card(direction="pred->gt"), "m: Euclidean NN distances, mean per set, pred->gt;"),
-        (_card(metric="iou", power=0, reduction="none", direction="none", quantity="volume IoU",
-               higher_is_better=True), "iou: volume IoU; higher is better; shown x1;"),
+        (
+            _card(
+                metric="iou",
+                power=0,
+                reduction="none",
+                direction="none",
+                quantity="volume IoU",
+                higher_is_better=True,
+            ),
+            "iou: volume IoU; higher is better; shown x1;",
+        ),
     ],
     ids=["hausdorff", "fscore", "normal-consistency", "accuracy", "iou"],
-)  # fmt: skip
+)
 def test_non_chamfer_cards_validate_describe_and_round_trip(card, text):
     card.validate()
     assert card.describe().startswith(text)
@@ -152,16 +203,20 @@ def test_chamfer_tags_are_unchanged_so_stored_runs_keep_their_keys():
         "metric=chamfer-l2;power=2;reduction=mean;direction=symmetric;halved=False;"
         "scale=1000.0;frame=unit-radius;eval_points=30000"
     )
-    old = ("metric=chamfer-l1-asym;power=1;reduction=mean;direction=gt->pred;halved=False;"
-           "scale=1000.0;frame=unit-diameter;eval_points=16384")  # fmt: skip
+    old = (
+        "metric=chamfer-l1-asym;power=1;reduction=mean;direction=gt->pred;halved=False;"
+        "scale=1000.0;frame=unit-diameter;eval_points=16384"
+    )
     card = MetricCard.from_tag(old)
     assert card == ChamferL1Asym().card(16384).in_frame("unit-diameter")
     assert card.as_tag() == old
 
 
 def test_old_fscore_tags_read_as_todays_fscore_card():
-    old = ("metric=fscore;power=0;reduction=fraction within tau=0.01;direction=symmetric;"
-           "halved=False;scale=1.0;frame=unit-radius;eval_points=30000")  # fmt: skip
+    old = (
+        "metric=fscore;power=0;reduction=fraction within tau=0.01;direction=symmetric;"
+        "halved=False;scale=1.0;frame=unit-radius;eval_points=30000"
+    )
     card = MetricCard.from_tag(old)
     assert card == FScore().card(30000)
     assert card.threshold == 0.01 and card.higher_is_better
@@ -264,8 +319,12 @@ def bad_card_registry(tmp_path, monkeypatch):
     (tmp_path / "sb_badcard_mod.py").write_text(BAD)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # registering checks nothing yet: no warning
-        return discover([EntryPoint("badcard", "sb_badcard_mod", "shapebench"),
-                         EntryPoint("good", "sb_api_good_mod", "shapebench")])  # fmt: skip
+        return discover(
+            [
+                EntryPoint("badcard", "sb_badcard_mod", "shapebench"),
+                EntryPoint("good", "sb_api_good_mod", "shapebench"),
+            ]
+        )
 
 
 def test_bad_metric_cards_disable_those_metrics_with_warnings(bad_card_registry):
@@ -394,8 +453,17 @@ def test_a_run_computes_the_example_metric_and_skips_a_bad_card(
     assert run.data.tags["card.hausdorff"].startswith("metric=hausdorff;power=1;reduction=max;")
     assert run.data.metrics["hausdorff.mean"] > 0
     assert "card.median-dist" not in run.data.tags and "card.chamfer-l2" in run.data.tags
-    board = shapebench("leaderboard", "-d", "synthetic", "--split", "novel",
-                       "--metric", "hausdorff", "--out", str(tmp_path / "boards"))  # fmt: skip
+    board = shapebench(
+        "leaderboard",
+        "-d",
+        "synthetic",
+        "--split",
+        "novel",
+        "--metric",
+        "hausdorff",
+        "--out",
+        str(tmp_path / "boards"),
+    )
     assert board.returncode == 0, board.stderr
     text = (tmp_path / "boards" / "synthetic-novel.md").read_text()
     assert "**Metric card**: hausdorff: Euclidean NN distances, max per set, max of both" in text

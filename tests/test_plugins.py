@@ -19,8 +19,11 @@ from shapebench.registry.discovery import PluginWarning, discover
 def test_builtins_register_through_entry_points(shapebench):
     res = shapebench("plugins")
     assert res.returncode == 0, res.stderr
-    for ep, provides in (("gauss", "methods: gauss"), ("synthetic", "datasets: synthetic"),
-                         ("metrics", "chamfer-l2")):  # fmt: skip
+    for ep, provides in (
+        ("gauss", "methods: gauss"),
+        ("synthetic", "datasets: synthetic"),
+        ("metrics", "chamfer-l2"),
+    ):
         line = next(ln for ln in res.stdout.splitlines() if ln.startswith(ep + " "))
         assert "shapebench" in line and "0.1.0" in line
         assert provides in res.stdout
@@ -114,8 +117,13 @@ def test_loading_every_registered_class_imports_no_torch():
         "print(json.dumps({'loaded': loaded, 'heavy': heavy}))\n"
     )
     out = _run_fresh(code)
-    for expected in ("method igr", "method pcn", "method gauss", "dataset synthetic",
-                     "metric chamfer-l2"):  # fmt: skip
+    for expected in (
+        "method igr",
+        "method pcn",
+        "method gauss",
+        "dataset synthetic",
+        "metric chamfer-l2",
+    ):
         assert expected in out["loaded"]  # the check below is not vacuous
     assert out["heavy"] == {}, f"module imported by the first class that pulled it: {out['heavy']}"
 
@@ -150,8 +158,10 @@ def test_discover_survives_a_broken_entry_point(tmp_path, monkeypatch):
         "def shapebench_register_metrics(register):\n"
         "    register('good-metric', 'shapebench.metrics.chamfer:ChamferL2')\n",
     )
-    eps = [EntryPoint("bad", "sb_bad_mod", "shapebench"),
-           EntryPoint("good", "sb_good_mod", "shapebench")]  # fmt: skip
+    eps = [
+        EntryPoint("bad", "sb_bad_mod", "shapebench"),
+        EntryPoint("good", "sb_good_mod", "shapebench"),
+    ]
     with pytest.warns(PluginWarning, match="'bad'.*RuntimeError: boom"):
         reg = discover(eps)
     assert reg.names("metric") == ["good-metric"]
@@ -186,8 +196,9 @@ def test_unknown_and_conflicting_names(tmp_path, monkeypatch):
         )
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        reg = discover([EntryPoint("a", "sb_a_mod", "shapebench"),
-                        EntryPoint("b", "sb_b_mod", "shapebench")])  # fmt: skip
+        reg = discover(
+            [EntryPoint("a", "sb_a_mod", "shapebench"), EntryPoint("b", "sb_b_mod", "shapebench")]
+        )
     with pytest.raises(PluginConflictError):
         reg.get("method", "same")
     with pytest.raises(UnknownNameError, match="available: same"):

@@ -116,8 +116,9 @@ def test_failures_in_process_are_reported_not_raised(tmp_path, monkeypatch):
     ds = CrashingDataset(TINY, tmp_path / "cache", make_meshes(tmp_path / "data"))
     report = prepare(ds, [NOVEL], frozenset(), jobs=1, quiet=True)
     assert report.ok == 3 and sorted(f.ref.id for f in report.failures) == [
-        "round/broken", "round/sphere",
-    ]  # fmt: skip
+        "round/broken",
+        "round/sphere",
+    ]
     with pytest.raises(ObjectLoadError):  # the reason stays cached with the object
         ds.load(next(r for r in ds.objects(NOVEL) if r.id == "round/sphere"))
 

@@ -53,8 +53,9 @@ def test_broken_files_fail_alone_and_real_meshes_are_scored(tmp_path):
     options = FilesDataset.Options(surface_candidates=4000, gt_points=3000)
     dataset = FilesDataset(options, tmp_path / "cache", files)
 
-    settings = make_settings(f"sqlite:///{tmp_path / 'db.sqlite'}", tmp_path / "cache",
-                             "quick", tmp_path)  # fmt: skip
+    settings = make_settings(
+        f"sqlite:///{tmp_path / 'db.sqlite'}", tmp_path / "cache", "quick", tmp_path
+    )
     registry = get_registry()
     method = resolve_method(registry, "gauss", settings)
     plan = RunPlan(method, dataset, [NOVEL], [50, 100], [0], resolve_metrics(registry, None))

@@ -9,12 +9,24 @@ CARD = MetricCard("chamfer-l2", 2, "mean", "symmetric", False, 1000.0, "unit-rad
 
 
 def _record(**kw) -> CellRecord:
-    values = dict(cell_key="k1", method="igr", dataset="synthetic", split="novel",
-                  context_size=50, seed=3, cards={"chamfer-l2": CARD.as_tag()},
-                  trains=True, frame="unit-diameter", context_normals=True,
-                  variant_key="v1", variant_label="igr[epochs=3]",
-                  variant_overrides={"epochs": 3}, metric_errors=("crashy",),
-                  eval_points_actual=1500, checkpoint_key="c1")  # fmt: skip
+    values = dict(
+        cell_key="k1",
+        method="igr",
+        dataset="synthetic",
+        split="novel",
+        context_size=50,
+        seed=3,
+        cards={"chamfer-l2": CARD.as_tag()},
+        trains=True,
+        frame="unit-diameter",
+        context_normals=True,
+        variant_key="v1",
+        variant_label="igr[epochs=3]",
+        variant_overrides={"epochs": 3},
+        metric_errors=("crashy",),
+        eval_points_actual=1500,
+        checkpoint_key="c1",
+    )
     values.update(kw)
     return CellRecord(**values)
 
@@ -30,9 +42,16 @@ def test_tags_round_trip_to_the_same_typed_record():
 
 
 def test_tags_of_an_older_store_read_with_defaults():
-    old = {"shapebench.kind": "cell", "shapebench.cell_key": "k0", "method": "gauss",
-           "dataset": "synthetic", "split": "novel", "context_size": "100", "seed": "0",
-           "card.chamfer-l2": CARD.as_tag()}  # fmt: skip
+    old = {
+        "shapebench.kind": "cell",
+        "shapebench.cell_key": "k0",
+        "method": "gauss",
+        "dataset": "synthetic",
+        "split": "novel",
+        "context_size": "100",
+        "seed": "0",
+        "card.chamfer-l2": CARD.as_tag(),
+    }
     record = CellRecord.from_tags(old)
     assert (record.context_size, record.seed, record.variant_key) == (100, 0, "")
     assert record.metric_errors == () and record.cards == {"chamfer-l2": CARD.as_tag()}

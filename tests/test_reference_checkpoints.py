@@ -13,8 +13,20 @@ from conftest import SMALL_IGR, TINY
 
 from shapebench.train import references as refs
 
-RUN = ("run", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "--split", "novel",
-       "--contexts", "50", "-q")  # fmt: skip
+RUN = (
+    "run",
+    "-m",
+    "igr",
+    "-d",
+    "synthetic",
+    *TINY,
+    *SMALL_IGR,
+    "--split",
+    "novel",
+    "--contexts",
+    "50",
+    "-q",
+)
 
 
 def _shipped() -> list[refs.Reference]:
@@ -83,8 +95,13 @@ def _make_reference(sb, root) -> refs.Reference:
     (done,) = (sb.workspace / "checkpoints" / "igr").glob("*/done.json")
     record = json.loads(done.read_text())
     summary = json.loads((done.parent / "summary.json").read_text())
-    info = {"key": record["key"], "method": "igr", "command": "shapebench train -m igr",
-            "summary": summary, "versions": {}}  # fmt: skip
+    info = {
+        "key": record["key"],
+        "method": "igr",
+        "command": "shapebench train -m igr",
+        "summary": summary,
+        "versions": {},
+    }
     ref = refs.export(refs.Path(record["path"]), root / "igr" / record["key"], info)
     shutil.rmtree(sb.workspace)
     sb.workspace.mkdir()

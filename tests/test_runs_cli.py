@@ -40,8 +40,19 @@ def test_runs_lists_cells_with_variant_metric_duration_and_id(store):
     res = sb("runs")
     assert res.returncode == 0, res.stderr
     lines = res.stdout.splitlines()
-    assert lines[0].split() == ["variant", "dataset/split", "k", "seed", "status", "metric",
-                                "mean", "failed", "time", "run", "id"]  # fmt: skip
+    assert lines[0].split() == [
+        "variant",
+        "dataset/split",
+        "k",
+        "seed",
+        "status",
+        "metric",
+        "mean",
+        "failed",
+        "time",
+        "run",
+        "id",
+    ]
     assert lines[-1] == "4 runs; details: shapebench show RUN_ID"
     rows = [line.split() for line in lines[1:-1]]
     assert {row[-1] for row in rows} == set(cells)
@@ -51,8 +62,7 @@ def test_runs_lists_cells_with_variant_metric_duration_and_id(store):
         assert row[0] == tags["variant.label"] and row[1] == "synthetic/novel"
         assert row[2] == tags["context_size"] and row[4] == "FINISHED"
         assert row[5:7] == ["chamfer-l2", "x1000"]  # the card's scale, as the leaderboards
-        assert float(row[7]) == pytest.approx(run.data.metrics["chamfer-l2.mean"] * 1000,
-                                              abs=1e-3)  # fmt: skip
+        assert float(row[7]) == pytest.approx(run.data.metrics["chamfer-l2.mean"] * 1000, abs=1e-3)
         assert row[8] == "0/4" and re.fullmatch(r"\d+\.\ds", row[9])
     assert {row[0] for row in rows} == {"gauss", "gauss[sigma=0.05]"}
 
@@ -70,7 +80,9 @@ def test_runs_filters_and_json(store):
     assert res.returncode == 0 and res.stdout.startswith("No cell runs match"), res.stdout
     parents = sb("runs", "--kind", "parent").stdout.splitlines()
     assert sorted(line.split("  ")[0] for line in parents[1:-1]) == [
-        "gauss (parent)", "gauss[sigma=0.05] (parent)"]  # fmt: skip
+        "gauss (parent)",
+        "gauss[sigma=0.05] (parent)",
+    ]
     assert parents[-1].startswith("2 runs")
     bad = sb("runs", "--status", "lost")
     assert bad.returncode == 2 and "'lost' is not one of" in bad.stderr
@@ -79,8 +91,11 @@ def test_runs_filters_and_json(store):
 @pytest.mark.slow
 def test_show_by_prefix_gives_metrics_artifacts_and_a_link(store):
     sb, _ = store
-    run = next(r for r in sb.cell_runs("synthetic-novel")
-               if r.data.tags["variant.label"] == "gauss[sigma=0.05]")  # fmt: skip
+    run = next(
+        r
+        for r in sb.cell_runs("synthetic-novel")
+        if r.data.tags["variant.label"] == "gauss[sigma=0.05]"
+    )
     run_id, exp_id = run.info.run_id, run.info.experiment_id
     res = sb("show", run_id[:8])
     assert res.returncode == 0, res.stderr
@@ -138,8 +153,11 @@ def test_methods_profile_shows_the_values_in_effect():
             assert ", default " not in section, section
         for name, value in given.items():
             line = next(ln for ln in section.splitlines() if ln.strip().startswith(f"{name} ("))
-            expected = f"{value!r}" if value == defaults[name] else (
-                f"{value!r}, default {defaults[name]!r}")  # fmt: skip
+            expected = (
+                f"{value!r}"
+                if value == defaults[name]
+                else (f"{value!r}, default {defaults[name]!r}")
+            )
             assert f", {expected})" in line, line
     res = CliRunner().invoke(cli, ["methods", "--profile", "nope"])
     assert res.exit_code == 2 and "unknown profile 'nope'" in res.output
@@ -148,8 +166,19 @@ def test_methods_profile_shows_the_values_in_effect():
 @pytest.mark.slow
 def test_training_says_why_it_starts_and_lists_with_its_link(with_example):
     sb = with_example
-    args = ("run", "-m", "example-template", "-d", "synthetic", *TINY, "--contexts", "50",
-            "--split", "novel", "-q")  # fmt: skip
+    args = (
+        "run",
+        "-m",
+        "example-template",
+        "-d",
+        "synthetic",
+        *TINY,
+        "--contexts",
+        "50",
+        "--split",
+        "novel",
+        "-q",
+    )
     res = sb(*args)
     assert res.returncode == 0, res.stderr
     (line,) = [ln for ln in res.stderr.splitlines() if "no checkpoint for key" in ln]
@@ -162,6 +191,8 @@ def test_training_says_why_it_starts_and_lists_with_its_link(with_example):
     cell = sb.cell_runs("synthetic-novel")[0]
     shown = sb("show", cell.info.run_id).stdout
     training = trainings[0]
-    assert (f"training:    http://127.0.0.1:5000/#/experiments/{training['experiment_id']}"
-            f"/runs/{training['run_id']}") in shown  # fmt: skip
+    assert (
+        f"training:    http://127.0.0.1:5000/#/experiments/{training['experiment_id']}"
+        f"/runs/{training['run_id']}"
+    ) in shown
     assert f"runs/{training['run_id']})" in cell.data.tags["mlflow.note.content"]

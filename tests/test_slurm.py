@@ -49,11 +49,14 @@ def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(
     logs = sb.workspace / "logs" / "submitit" / "soak"
     rank_logs = "".join(p.read_text() for p in logs.glob("*_log.err"))
     assert "GLOBAL_RANK: 1, MEMBER: 2/2" in rank_logs
-    per_cell = Counter((r.data.tags["method"], r.data.tags["split"],
-                        r.data.tags["context_size"]) for r in cell_runs(sb))  # fmt: skip
+    per_cell = Counter(
+        (r.data.tags["method"], r.data.tags["split"], r.data.tags["context_size"])
+        for r in cell_runs(sb)
+    )
     assert len(per_cell) == 8 and set(per_cell.values()) == {1}
-    training = [r for r in all_runs(sb, "FINISHED")
-                if r.data.tags.get("shapebench.kind") == "training"]  # fmt: skip
+    training = [
+        r for r in all_runs(sb, "FINISHED") if r.data.tags.get("shapebench.kind") == "training"
+    ]
     assert len(training) == 1
     assert training[0].data.params["training.world_size"] == "2"
     assert all_runs(sb, "RUNNING") == []
@@ -89,8 +92,10 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
     )
     res = sb("sweep", str(sweep))
     assert res.returncode == 0 and "1 trainings to submit" in res.stdout, res.stderr
-    manifest = [json.loads(line) for line in
-                (sb.workspace / "sweeps" / "soak.jsonl").read_text().splitlines()]  # fmt: skip
+    manifest = [
+        json.loads(line)
+        for line in (sb.workspace / "sweeps" / "soak.jsonl").read_text().splitlines()
+    ]
     job = next(j for j in manifest if j["kind"] == "training")
     jid, log = job["job_id"], job["stderr"]
     ckpts = sb.workspace / "checkpoints"
@@ -123,6 +128,7 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
     assert "resuming from" in text and "last.ckpt" in text
     summary = json.loads(next(ckpts.glob("*/*/summary.json")).read_text())
     assert summary["resumed_from_epoch"] >= 1
-    training = [r for r in all_runs(sb, "FINISHED")
-                if r.data.tags.get("shapebench.kind") == "training"]  # fmt: skip
+    training = [
+        r for r in all_runs(sb, "FINISHED") if r.data.tags.get("shapebench.kind") == "training"
+    ]
     assert len(training) == 1 and training[0].data.tags.get("resumed") == "true"

@@ -95,8 +95,11 @@ def test_sweep_killed_at_random_moments_equals_an_uninterrupted_one(shapebench, 
                 kills.append(moment)
             # The pipes close only when the orphaned training (which inherited them) exits too.
             proc.communicate()
-        wait_for(lambda: not processes_mentioning(str(sb.workspace)), timeout=15,
-                 what=f"no shapebench process left after the kill {moment}")  # fmt: skip
+        wait_for(
+            lambda: not processes_mentioning(str(sb.workspace)),
+            timeout=15,
+            what=f"no shapebench process left after the kill {moment}",
+        )
         orphan_seconds.append(time.monotonic() - killed)
 
     def finished() -> int:
@@ -117,26 +120,37 @@ def test_sweep_killed_at_random_moments_equals_an_uninterrupted_one(shapebench, 
     for _ in range(2):
         delay = rng.uniform(4.0, 14.0)
         start = time.monotonic()
-        kill_when(f"at random, {delay:.1f} s after start",
-                  lambda start=start, delay=delay: time.monotonic() - start > delay)  # fmt: skip
+        kill_when(
+            f"at random, {delay:.1f} s after start",
+            lambda start=start, delay=delay: time.monotonic() - start > delay,
+        )
 
     res = sb("sweep", str(sweep), "-q", timeout=900)
     assert res.returncode == 0, res.stderr[-3000:]
     got = leaderboard(sb, tmp_path / "board-killed")
 
     runs = cell_runs(sb)
-    per_cell = Counter((r.data.tags["method"], r.data.tags["split"], r.data.tags["context_size"],
-                        r.data.tags["seed"]) for r in runs)  # fmt: skip
+    per_cell = Counter(
+        (
+            r.data.tags["method"],
+            r.data.tags["split"],
+            r.data.tags["context_size"],
+            r.data.tags["seed"],
+        )
+        for r in runs
+    )
     duplicated = sum(n - 1 for n in per_cell.values())
     lost = CELLS - len(per_cell)
     running = all_runs(sb, "RUNNING")
     numeric = score_columns(expected)
     assert list(got.columns) == list(expected.columns) and len(got) == len(expected)
     diff = (got[numeric] - expected[numeric]).abs().max().max() if len(numeric) else 0.0
-    print(f"\nsoak: {len(kills)} kills ({'; '.join(kills)}); {len(per_cell)} cells, "
-          f"{duplicated} duplicated, {lost} lost, {len(running)} runs left RUNNING, "
-          f"max |leaderboard difference| {diff:.3g}, orphans gone within "
-          f"{max(orphan_seconds):.1f} s of a kill")  # fmt: skip
+    print(
+        f"\nsoak: {len(kills)} kills ({'; '.join(kills)}); {len(per_cell)} cells, "
+        f"{duplicated} duplicated, {lost} lost, {len(running)} runs left RUNNING, "
+        f"max |leaderboard difference| {diff:.3g}, orphans gone within "
+        f"{max(orphan_seconds):.1f} s of a kill"
+    )
     assert len(kills) >= 5, kills
     assert duplicated == 0 and lost == 0
     assert running == []

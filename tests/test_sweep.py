@@ -31,15 +31,30 @@ seeds: [0]
 def test_sweep_resumes_after_kill_9_without_duplicates(with_example, tmp_path):
     sb = with_example
     # Build the tiny dataset first so the timing below is about the method only.
-    assert sb("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
-              "--contexts", "50", "-q").returncode == 0  # fmt: skip
+    assert (
+        sb(
+            "run",
+            "-m",
+            "gauss",
+            "-d",
+            "synthetic",
+            *TINY,
+            "--split",
+            "novel",
+            "--contexts",
+            "50",
+            "-q",
+        ).returncode
+        == 0
+    )
     sweep = tmp_path / "sweep.yaml"
     sweep.write_text(SWEEP.format(delay=0.4))  # 4 objects x 0.4 s per cell
     proc = sb.popen("sweep", str(sweep), "-q", start_new_session=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
-        done = [r for r in sb.cell_runs("synthetic-novel")
-                if r.data.tags["method"] == "example-sphere"]  # fmt: skip
+        done = [
+            r for r in sb.cell_runs("synthetic-novel") if r.data.tags["method"] == "example-sphere"
+        ]
         if done:
             break
         time.sleep(0.2)
@@ -54,8 +69,12 @@ def test_sweep_resumes_after_kill_9_without_duplicates(with_example, tmp_path):
     keys = [r.data.tags["shapebench.cell_key"] for r in finished]
     assert len(keys) == len(set(keys)), "a cell was run twice"
     cells = {(r.data.tags["method"], r.data.tags["context_size"]) for r in finished}
-    assert cells == {("example-sphere", "50"), ("example-sphere", "100"),
-                     ("gauss", "50"), ("gauss", "100")}  # fmt: skip
+    assert cells == {
+        ("example-sphere", "50"),
+        ("example-sphere", "100"),
+        ("gauss", "50"),
+        ("gauss", "100"),
+    }
     # The run that was killed mid-cell is not left looking alive.
     assert sb.cell_runs("synthetic-novel", status="RUNNING") == []
     client = sb.client()

@@ -30,8 +30,20 @@ def test_registry_has_enough_categories_in_both_splits() -> None:
     assert splits == {"trained", "novel"}
     novel = [n for n, f in CATEGORIES.items() if f.split == "novel"]
     assert 3 <= len(novel) < len(CATEGORIES) / 2
-    required = {"chair", "table", "mug", "lamp", "bottle", "sofa", "bench", "bed", "airplane",
-                "car", "shelf", "bowl"}  # fmt: skip
+    required = {
+        "chair",
+        "table",
+        "mug",
+        "lamp",
+        "bottle",
+        "sofa",
+        "bench",
+        "bed",
+        "airplane",
+        "car",
+        "shelf",
+        "bowl",
+    }
     assert required <= set(CATEGORIES)
     for name, family in CATEGORIES.items():
         assert isinstance(family, Family)
@@ -92,8 +104,9 @@ def test_determinism_does_not_depend_on_python_hash_seed() -> None:
     digests = set()
     for hash_seed in ("1", "2"):
         env = {**os.environ, "PYTHONHASHSEED": hash_seed}
-        out = subprocess.run([sys.executable, "-c", code], env=env, check=True,
-                             capture_output=True, text=True)  # fmt: skip
+        out = subprocess.run(
+            [sys.executable, "-c", code], env=env, check=True, capture_output=True, text=True
+        )
         digests.add(out.stdout.strip())
     expected = hashlib.sha256()
     for c in CATEGORIES:

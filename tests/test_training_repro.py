@@ -19,8 +19,18 @@ pytestmark = pytest.mark.slow  # every test trains with Lightning
 
 #: A tiny MSC: its training step draws context and target subsets, the reparameterised code and
 #: Eikonal samples, and its data module draws surface points and the shuffle order.
-TINY_MSC = dict(latent_dim=8, width=32, depth=2, encoder_width=16, encoder_layers=1, epochs=2,
-                batch_shapes=2, surface_points=64, max_target=32, lr=1e-3)  # fmt: skip
+TINY_MSC = dict(
+    latent_dim=8,
+    width=32,
+    depth=2,
+    encoder_width=16,
+    encoder_layers=1,
+    epochs=2,
+    batch_shapes=2,
+    surface_points=64,
+    max_target=32,
+    lr=1e-3,
+)
 
 
 class _Shapes(Dataset):
@@ -44,23 +54,31 @@ class _Shapes(Dataset):
         mesh = self.meshes[int(ref.id.split("/")[1])]
         pts, faces = trimesh.sample.sample_surface(mesh, 500, seed=0)
         normals = mesh.face_normals[faces]
-        return ObjectData(ref, pts.astype(np.float32), normals.astype(np.float32),
-                          pts.astype(np.float32))  # fmt: skip
+        return ObjectData(
+            ref, pts.astype(np.float32), normals.astype(np.float32), pts.astype(np.float32)
+        )
 
 
 def _meshes() -> list[trimesh.Trimesh]:
-    return [trimesh.creation.icosphere(2, radius=0.5),
-            trimesh.creation.box((0.8, 0.5, 0.3)),
-            trimesh.creation.capsule(0.6, 0.2),
-            trimesh.creation.box((0.3, 0.3, 1.0))]  # fmt: skip
+    return [
+        trimesh.creation.icosphere(2, radius=0.5),
+        trimesh.creation.box((0.8, 0.5, 0.3)),
+        trimesh.creation.capsule(0.6, 0.2),
+        trimesh.creation.box((0.3, 0.3, 1.0)),
+    ]
 
 
-def _train(tmp_path: Path, seed: int, name: str, tracking_uri: str = "",
-           run_id: str | None = None, quiet: bool = True) -> dict[str, torch.Tensor]:  # fmt: skip
+def _train(
+    tmp_path: Path,
+    seed: int,
+    name: str,
+    tracking_uri: str = "",
+    run_id: str | None = None,
+    quiet: bool = True,
+) -> dict[str, torch.Tensor]:
     """Two epochs of the tiny MSC in this process; the weights it saved."""
     trainer = TrainerOptions(accelerator="cpu", devices=1, seed=seed)
-    ctx = TrainingContext(_Shapes(_meshes()), trainer, tmp_path / name, tracking_uri, run_id,
-                          quiet)  # fmt: skip
+    ctx = TrainingContext(_Shapes(_meshes()), trainer, tmp_path / name, tracking_uri, run_id, quiet)
     path = MSC(MSC.Options(**TINY_MSC)).fit(ctx)
     return torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
 

@@ -26,8 +26,20 @@ def store(tmp_path_factory, data_cache) -> Shapebench:
     """Two variants of gauss at three context sizes on the tiny benchmark's novel split."""
     sb = Shapebench(tmp_path_factory.mktemp("ui-ws"), data_cache)
     for extra in VARIANTS.values():
-        res = sb("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "novel",
-                 "--contexts", "50,100,300", "-q", *extra)  # fmt: skip
+        res = sb(
+            "run",
+            "-m",
+            "gauss",
+            "-d",
+            "synthetic",
+            *TINY,
+            "--split",
+            "novel",
+            "--contexts",
+            "50,100,300",
+            "-q",
+            *extra,
+        )
         assert res.returncode == 0, res.stderr
     return sb
 
@@ -50,8 +62,10 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
 
     client = store.client()
     exp = client.get_experiment_by_name("synthetic-novel")
-    parents = {r.info.run_name: r for r in client.search_runs(
-        [exp.experiment_id], "tags.`shapebench.kind` = 'parent'")}  # fmt: skip
+    parents = {
+        r.info.run_name: r
+        for r in client.search_runs([exp.experiment_id], "tags.`shapebench.kind` = 'parent'")
+    }
     names = {f"{v} on synthetic/novel" for v in VARIANTS}
     assert set(parents) == names
     port = free_port()
@@ -79,8 +93,9 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
             for run in parents.values():
                 # The grid's rows are keyed by run id; the parent's value is its latest step:
                 # the cells' mean at k=300.
-                cell = page.locator(f'[role=row][row-id="{run.info.run_id}"] '
-                                    '[col-id="metrics.`chamfer-l2.mean`"]')  # fmt: skip
+                cell = page.locator(
+                    f'[role=row][row-id="{run.info.run_id}"] [col-id="metrics.`chamfer-l2.mean`"]'
+                )
                 shown = float(cell.first.inner_text(timeout=UI_TIMEOUT_MS))
                 assert shown == pytest.approx(run.data.metrics["chamfer-l2.mean"], rel=1e-9)
             page.screenshot(path=shots / "ui-runs-table.png")
@@ -89,8 +104,7 @@ def test_ui_links_open_runs_table_and_charts_in_chromium(store, tmp_path):
             # The chart view: the metric against context size, one line per variant.
             page.goto(charts_url, timeout=UI_TIMEOUT_MS)
             for name in names:
-                page.get_by_text(f"{name} (chamfer-l2.mean)").first.wait_for(
-                    timeout=UI_TIMEOUT_MS)  # fmt: skip
+                page.get_by_text(f"{name} (chamfer-l2.mean)").first.wait_for(timeout=UI_TIMEOUT_MS)
             page.get_by_text("Step", exact=True).first.wait_for(timeout=UI_TIMEOUT_MS)
             page.screenshot(path=shots / "ui-charts.png")
             keep_screenshot(shots / "ui-charts.png")

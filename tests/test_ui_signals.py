@@ -93,9 +93,13 @@ def running_ui(
     with log.open("w") as out:
         proc = subprocess.Popen(
             [sys.executable, "-m", "shapebench", "ui", "--port", str(port)],
-            env=shapebench.env(), cwd=shapebench.workspace, stdout=out,
-            stderr=subprocess.STDOUT, text=True, start_new_session=True,
-        )  # fmt: skip
+            env=shapebench.env(),
+            cwd=shapebench.workspace,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
     try:
         try:
             wait_http(f"http://127.0.0.1:{port}/health", proc)
@@ -115,8 +119,9 @@ def wait_until(condition: Callable[[], bool], timeout: float) -> bool:
     return condition()
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT],
-                         ids=["SIGTERM", "SIGHUP", "SIGINT"])  # fmt: skip
+@pytest.mark.parametrize(
+    "signum", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT], ids=["SIGTERM", "SIGHUP", "SIGINT"]
+)
 def test_signal_to_ui_stops_the_server(
     running_ui: tuple[subprocess.Popen, int, Path], signum: signal.Signals
 ) -> None:
@@ -202,8 +207,10 @@ def test_an_exception_in_shapebench_ui_stops_the_server(tmp_path: Path) -> None:
     try:
         with pytest.raises(RuntimeError, match="shapebench ui failed"):
             # The delay lets run_server reach its wait before the exception.
-            run_server(["sh", "-c", f"echo $$ > {pid_file}; sleep 60 & sleep 0.5; "
-                        "kill -ALRM $PPID; wait"], dict(os.environ))  # fmt: skip
+            run_server(
+                ["sh", "-c", f"echo $$ > {pid_file}; sleep 60 & sleep 0.5; kill -ALRM $PPID; wait"],
+                dict(os.environ),
+            )
     finally:
         signal.signal(signal.SIGALRM, previous)
     assert group_gone(int(pid_file.read_text()))

@@ -46,9 +46,15 @@ MAX_TIME_DIFFERENCE = 0.02
 MAX_SEARCH_DEPTH = 4  # folder levels below the data root searched for sequences
 #: What a trajectory file may be called; its content decides its layout.
 TRAJECTORY_PATTERNS = (
-    "*.gt.freiburg", "*.freiburg", "groundtruth.txt", "*.log", "traj.txt", "trajectory.txt",
-    "*-traj.txt", "*_traj.txt",
-)  # fmt: skip
+    "*.gt.freiburg",
+    "*.freiburg",
+    "groundtruth.txt",
+    "*.log",
+    "traj.txt",
+    "trajectory.txt",
+    "*-traj.txt",
+    "*_traj.txt",
+)
 #: A folder of depth PNGs named like Choi et al.'s re-release: ``livingroom1-depth-clean``.
 _DEPTH_FOLDER = re.compile(r"^(?P<scene>.+?)-depth(-[a-z]+)?$", re.IGNORECASE)
 _NUMBER = re.compile(r"(\d+)(?!.*\d)")  # the last group of digits of a name

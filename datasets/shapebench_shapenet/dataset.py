@@ -180,12 +180,15 @@ class ShapeNetDataset(MeshDataset):
             if c.split == split and c.synset in self.models and c.name not in counted
         ]
         if empty:
-            notes.append(f"{len(empty)} categor{'y' if len(empty) == 1 else 'ies'} with no test "
-                         f"model (too few models for test_fraction={o.test_fraction}): "
-                         + ", ".join(empty))  # fmt: skip
+            notes.append(
+                f"{len(empty)} categor{'y' if len(empty) == 1 else 'ies'} with no test "
+                f"model (too few models for test_fraction={o.test_fraction}): " + ", ".join(empty)
+            )
         if o.max_test_per_category:
-            notes.append(f"at most {o.max_test_per_category} test models per category "
-                         "(-D max_test_per_category=0 evaluates all)")  # fmt: skip
+            notes.append(
+                f"at most {o.max_test_per_category} test models per category "
+                "(-D max_test_per_category=0 evaluates all)"
+            )
         return notes
 
     def mesh(self, ref: ObjectRef):

@@ -75,8 +75,10 @@ class SyntheticDataset(MeshDataset):
         if split == TRAIN:
             return []
         n = self.options.test_per_category
-        return [f"{n} test object{'s' if n != 1 else ''} per category; "
-                "-D test_per_category=N for a larger benchmark"]  # fmt: skip
+        return [
+            f"{n} test object{'s' if n != 1 else ''} per category; "
+            "-D test_per_category=N for a larger benchmark"
+        ]
 
     def mesh(self, ref: ObjectRef):
         seed = stable_seed("synthetic", self.options.seed, ref.id) % (2**32)

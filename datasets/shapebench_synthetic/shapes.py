@@ -919,8 +919,12 @@ def _airplane(rng: np.random.Generator) -> Solid:
     tail_z = rf - rt
     # Fuselage: hull of spheres, each turned about x so that no hull vertex or edge lies on the
     # y = 0 plane, where the fin and the wing-half overlaps would meet it degenerately.
-    stations = [(length / 2 - rn, 0.0, rn), (0.2 * length, 0.0, rf), (-0.15 * length, 0.0, rf),
-                (-length / 2 + rt, tail_z, rt)]  # fmt: skip
+    stations = [
+        (length / 2 - rn, 0.0, rn),
+        (0.2 * length, 0.0, rf),
+        (-0.15 * length, 0.0, rf),
+        (-length / 2 + rt, tail_z, rt),
+    ]
     parts = [
         Manifold.batch_hull(
             [

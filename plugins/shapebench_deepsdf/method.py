@@ -70,6 +70,18 @@ class DeepSDF(ImplicitMethod):
     supervision = frozenset({Supervision.SDF_SAMPLES})
     Options = DeepSDFOptions
     module_path = "shapebench_deepsdf.module:DeepSDFModule"
+    #: Tiny options for ``shapebench check``. Five epochs, not one: after fewer steps the tiny
+    #: network has no surface to mesh.
+    check_options = {
+        "latent_dim": 8,
+        "width": 32,
+        "depth": 2,
+        "epochs": 5,
+        "batch_shapes": 4,
+        "mesh_resolution": 32,
+        "opt_steps": 5,
+        "sdf_points": 256,
+    }
     recipes = with_shared({"paper": {"lr": 1e-3}, "official": {"lr": 5e-4}}, decoder="deepsdf")
 
     def sample_sizes(self) -> dict[Supervision, int]:

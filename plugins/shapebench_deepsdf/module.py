@@ -9,9 +9,9 @@ import torch
 from torch import nn
 
 from shapebench.implicit.losses import clamped_l1
-from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import DeepSDFDecoder
 from shapebench.train.lightning_fit import adam_halving
+from shapebench.train.lightning_module import OptionsModule
 from shapebench_deepsdf.method import DeepSDFOptions
 
 
@@ -19,8 +19,7 @@ class DeepSDFModule(OptionsModule):
     Options = DeepSDFOptions
     options: DeepSDFOptions
 
-    def __init__(self, options: DeepSDFOptions | None = None, n_shapes: int = 0,
-                 **saved) -> None:  # fmt: skip
+    def __init__(self, options: DeepSDFOptions | None = None, n_shapes: int = 0, **saved) -> None:
         super().__init__(options, n_shapes, **saved)
         o = self.options
         self.decoder = DeepSDFDecoder(o.latent_dim, o.width, o.depth, o.dropout)
@@ -35,8 +34,13 @@ class DeepSDFModule(OptionsModule):
         ramp = min(1.0, self.current_epoch / 100)  # the official regulariser ramps up over 100
         reg = o.code_reg * ramp * z.norm(dim=-1).mean()
         loss = data + reg
-        self.log_dict({"train/loss": loss, "train/sdf_l1": data}, on_step=False, on_epoch=True,
-                      batch_size=len(z), sync_dist=True)  # fmt: skip
+        self.log_dict(
+            {"train/loss": loss, "train/sdf_l1": data},
+            on_step=False,
+            on_epoch=True,
+            batch_size=len(z),
+            sync_dist=True,
+        )
         return loss
 
     def configure_optimizers(self):

@@ -81,6 +81,17 @@ class IGR(ImplicitMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS})
     Options = IGROptions
     module_path = "shapebench_igr.module:IGRModule"
+    #: Tiny options for ``shapebench check``: a small network, one epoch, coarse meshes.
+    check_options = {
+        "latent_dim": 8,
+        "width": 32,
+        "depth": 2,
+        "epochs": 1,
+        "batch_shapes": 4,
+        "mesh_resolution": 32,
+        "opt_steps": 5,
+        "surface_points": 64,
+    }
     # EIKONAL_SAMPLES joins IGR's copy of the shared IGR_TRAINING table only: MSC uses that
     # table too and has no opt_eikonal_samples, and apply_recipe fails on an unknown option.
     recipes = with_shared(

@@ -8,9 +8,9 @@ import torch
 from torch import nn
 
 from shapebench.implicit.losses import eikonal, gradient, normal_term, offsurface_samples
-from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import IGRDecoder
 from shapebench.train.lightning_fit import adam_halving
+from shapebench.train.lightning_module import OptionsModule
 from shapebench_igr.method import IGROptions
 
 
@@ -55,11 +55,24 @@ class IGRModule(OptionsModule):
         z = self.latents[batch["index"]]
         t = surface_losses(self.decoder, z, batch["points"], batch["normals"], o.offsurface)
         latent = z.norm(dim=-1).mean()
-        loss = (t["manifold"].mean() + o.eikonal_weight * t["eikonal"].mean()
-                + o.normal_weight * t["normals"].mean() + o.latent_reg * latent)  # fmt: skip
-        self.log_dict({"train/loss": loss, "train/manifold": t["manifold"].mean(),
-                       "train/eikonal": t["eikonal"].mean(), "train/normals": t["normals"].mean()},
-                      on_step=False, on_epoch=True, batch_size=len(z), sync_dist=True)  # fmt: skip
+        loss = (
+            t["manifold"].mean()
+            + o.eikonal_weight * t["eikonal"].mean()
+            + o.normal_weight * t["normals"].mean()
+            + o.latent_reg * latent
+        )
+        self.log_dict(
+            {
+                "train/loss": loss,
+                "train/manifold": t["manifold"].mean(),
+                "train/eikonal": t["eikonal"].mean(),
+                "train/normals": t["normals"].mean(),
+            },
+            on_step=False,
+            on_epoch=True,
+            batch_size=len(z),
+            sync_dist=True,
+        )
         return loss
 
     def configure_optimizers(self):

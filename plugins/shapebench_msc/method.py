@@ -85,6 +85,20 @@ class MSCNoOpt(ImplicitMethod):
     Options = MSCOptions
     checkpoint_family = "msc"
     module_path = "shapebench_msc.module:MSCModule"
+    #: Tiny options for ``shapebench check`` (MSC inherits them): small networks, one epoch.
+    check_options = {
+        "latent_dim": 8,
+        "width": 32,
+        "depth": 2,
+        "epochs": 1,
+        "batch_shapes": 4,
+        "mesh_resolution": 32,
+        "opt_steps": 5,
+        "surface_points": 64,
+        "encoder_width": 16,
+        "encoder_layers": 1,
+        "max_target": 64,
+    }
     #: IGR's training recipes (same decoder, same Eikonal term); IGR's test-time optimiser.
     recipes = with_shared(IGR_TRAINING, decoder="igr")
     optimise = False

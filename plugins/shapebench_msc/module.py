@@ -13,11 +13,11 @@ from shapebench.implicit.losses import (
     gaussian_kl,
     gradient,
     normal_term,
-    offsurface_samples,  # fmt: skip
+    offsurface_samples,
 )
-from shapebench.implicit.module_base import OptionsModule
 from shapebench.implicit.networks import IGRDecoder, MSCEncoder
 from shapebench.train.lightning_fit import adam_halving, step_generator
+from shapebench.train.lightning_module import OptionsModule
 from shapebench_msc.method import MSCOptions
 
 
@@ -28,8 +28,9 @@ class MSCModule(OptionsModule):
     def __init__(self, options: MSCOptions | None = None, n_shapes: int = 0, **saved) -> None:
         super().__init__(options, n_shapes, **saved)
         o = self.options
-        self.encoder = MSCEncoder(o.latent_dim, o.encoder_width, o.encoder_layers,
-                                  o.mean_weights, inputs=o.encoder_input)  # fmt: skip
+        self.encoder = MSCEncoder(
+            o.latent_dim, o.encoder_width, o.encoder_layers, o.mean_weights, inputs=o.encoder_input
+        )
         self.decoder = IGRDecoder(o.latent_dim, o.width, o.depth)
         # The decoder's noise sigma_theta is learned, from sigma_init down to at most sigma_min: a
         # sigma far below the fit's residuals makes the likelihood outweigh the Eikonal term by
@@ -69,10 +70,20 @@ class MSCModule(OptionsModule):
         eik = eikonal(g[:, t:]).mean()
         normals = normal_term(g[:, :t], tn).mean()
         loss = elbo + o.eikonal_weight * eik + o.normal_weight * normals
-        self.log_dict({"train/loss": loss, "train/elbo": elbo, "train/kl": kl.mean(),
-                       "train/eikonal": eik, "train/normals": normals,
-                       "train/sigma": self.sigma()},
-                      on_step=False, on_epoch=True, batch_size=b, sync_dist=True)  # fmt: skip
+        self.log_dict(
+            {
+                "train/loss": loss,
+                "train/elbo": elbo,
+                "train/kl": kl.mean(),
+                "train/eikonal": eik,
+                "train/normals": normals,
+                "train/sigma": self.sigma(),
+            },
+            on_step=False,
+            on_epoch=True,
+            batch_size=b,
+            sync_dist=True,
+        )
         return loss
 
     def draw_subsets(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -79,6 +79,19 @@ class OccNet(ImplicitMethod):
     )
     Options = OccNetOptions
     module_path = "shapebench_occnet.module:OccNetModule"
+    #: Tiny options for ``shapebench check``. Three epochs and a threshold of 0.5: after fewer
+    #: steps, or at the paper's 0.2, the tiny network has no surface to mesh.
+    check_options = {
+        "c_dim": 16,
+        "hidden_dim": 16,
+        "decoder_hidden": 16,
+        "query_points": 256,
+        "epochs": 3,
+        "lr": 0.003,
+        "threshold": 0.5,
+        "batch_shapes": 4,
+        "mesh_resolution": 32,
+    }
     recipes = with_shared(
         {
             "paper": {"decoder": "batchnorm", "queries": "paper"},
@@ -90,18 +103,25 @@ class OccNet(ImplicitMethod):
     def __init__(self, options=None) -> None:
         super().__init__(options)
         if self.options.queries not in QUERY_SOURCES:
-            raise ConfigError(f"occnet: queries must be one of {list(QUERY_SOURCES)}, "
-                              f"got {self.options.queries!r}")  # fmt: skip
+            raise ConfigError(
+                f"occnet: queries must be one of {list(QUERY_SOURCES)}, "
+                f"got {self.options.queries!r}"
+            )
 
     def needs(self) -> frozenset[Supervision]:
-        queries = (Supervision.SDF_SAMPLES if self.options.queries == "paper"
-                   else Supervision.OCCUPANCY_SAMPLES)  # fmt: skip
+        queries = (
+            Supervision.SDF_SAMPLES
+            if self.options.queries == "paper"
+            else Supervision.OCCUPANCY_SAMPLES
+        )
         return frozenset({Supervision.SURFACE_POINTS, queries})
 
     def sample_sizes(self) -> dict[Supervision, int]:
         o = self.options
-        return {Supervision.SURFACE_POINTS: o.surface_points,
-                Supervision.OCCUPANCY_SAMPLES: o.query_points}  # fmt: skip
+        return {
+            Supervision.SURFACE_POINTS: o.surface_points,
+            Supervision.OCCUPANCY_SAMPLES: o.query_points,
+        }
 
     def data_module(self, ctx):
         data = super().data_module(ctx)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch.nn import functional as F
 
-from shapebench.implicit.module_base import OptionsModule
+from shapebench.train.lightning_module import OptionsModule
 from shapebench_occnet.method import OccNetOptions
 from shapebench_occnet.network import DecoderBatchNorm, DecoderCBatchNorm, ResnetPointnet
 
@@ -14,8 +14,7 @@ class OccNetModule(OptionsModule):
     Options = OccNetOptions
     options: OccNetOptions
 
-    def __init__(self, options: OccNetOptions | None = None, n_shapes: int = 0,
-                 **saved) -> None:  # fmt: skip
+    def __init__(self, options: OccNetOptions | None = None, n_shapes: int = 0, **saved) -> None:
         super().__init__(options, n_shapes, **saved)
         o = self.options
         self.encoder = ResnetPointnet(o.c_dim, o.hidden_dim)
@@ -37,8 +36,9 @@ class OccNetModule(OptionsModule):
         points = batch["points"][:, : o.input_points]
         points = points + o.input_noise * torch.randn_like(points)  # as the paper and official
         loss = self.loss(points, batch["occupancy"])
-        self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(points),
-                 sync_dist=True)  # fmt: skip
+        self.log(
+            "train/loss", loss, on_step=False, on_epoch=True, batch_size=len(points), sync_dist=True
+        )
         return loss
 
     def configure_optimizers(self):

@@ -14,8 +14,9 @@ import math
 import torch
 
 
-def sinkhorn_emd(a: torch.Tensor, b: torch.Tensor, eps: float = 0.01,
-                 iterations: int = 100) -> torch.Tensor:  # fmt: skip
+def sinkhorn_emd(
+    a: torch.Tensor, b: torch.Tensor, eps: float = 0.01, iterations: int = 100
+) -> torch.Tensor:
     """Approximate EMD between (B, N, 3) sets of equal size: mean matched distance, (B,)."""
     cost = torch.cdist(a, b)
     n = a.shape[1]

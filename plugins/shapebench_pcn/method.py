@@ -19,7 +19,7 @@ import numpy as np
 
 from shapebench.api.options import option
 from shapebench.api.types import Completion, Context, Supervision
-from shapebench.implicit.method_base import LightningMethod
+from shapebench.train.lightning_method import LightningMethod
 
 
 @dataclass(frozen=True)
@@ -49,12 +49,23 @@ class PCN(LightningMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PCNOptions
     module_path = "shapebench_pcn.module:PCNModule"
+    #: Tiny options for ``shapebench check``: a small network, one epoch.
+    check_options = {
+        "feature": 32,
+        "num_coarse": 16,
+        "grid_size": 2,
+        "target_points": 256,
+        "epochs": 1,
+        "batch_shapes": 4,
+    }
     batch_size = 16
 
     def sample_sizes(self) -> dict[Supervision, int]:
         o = self.options
-        return {Supervision.SURFACE_POINTS: o.surface_points,
-                Supervision.COMPLETE_POINTS: o.target_points}  # fmt: skip
+        return {
+            Supervision.SURFACE_POINTS: o.surface_points,
+            Supervision.COMPLETE_POINTS: o.target_points,
+        }
 
     def encode(self, contexts: list[Context]) -> np.ndarray:
         """The fine clouds, (B, num_coarse * grid_size^2, 3)."""

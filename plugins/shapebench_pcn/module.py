@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from shapebench.implicit.module_base import OptionsModule
 from shapebench.train.lightning_fit import step_generator
+from shapebench.train.lightning_module import OptionsModule
 from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
 from shapebench_pcn.method import PCNOptions
 from shapebench_pcn.network import PCNNetwork
@@ -38,10 +38,18 @@ class PCNModule(OptionsModule):
         terms = self.losses(batch["points"][:, :k], batch["complete"])
         a = alpha(self.global_step, tuple(self.options.alpha_steps))
         loss = terms["coarse"] + a * terms["fine"]
-        self.log_dict({"train/loss": loss, "train/coarse_emd": terms["coarse"],
-                       "train/fine_cd": terms["fine"], "train/alpha": a},
-                      on_step=False, on_epoch=True, batch_size=len(batch["points"]),
-                      sync_dist=True)  # fmt: skip
+        self.log_dict(
+            {
+                "train/loss": loss,
+                "train/coarse_emd": terms["coarse"],
+                "train/fine_cd": terms["fine"],
+                "train/alpha": a,
+            },
+            on_step=False,
+            on_epoch=True,
+            batch_size=len(batch["points"]),
+            sync_dist=True,
+        )
         return loss
 
     def configure_optimizers(self):

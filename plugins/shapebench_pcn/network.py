@@ -24,8 +24,13 @@ def folding_grid(grid_size: int, grid_scale: float) -> torch.Tensor:
 
 
 class PCNNetwork(nn.Module):
-    def __init__(self, feature: int = 1024, num_coarse: int = 1024, grid_size: int = 4,
-                 grid_scale: float = 0.05) -> None:  # fmt: skip
+    def __init__(
+        self,
+        feature: int = 1024,
+        num_coarse: int = 1024,
+        grid_size: int = 4,
+        grid_scale: float = 0.05,
+    ) -> None:
         super().__init__()
         self.num_coarse = num_coarse
         self.encoder_0 = mlp([3, 128, 256])

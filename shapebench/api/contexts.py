@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from shapebench.api.errors import describe, warn_corrupt
 from shapebench.api.types import Context, ObjectData
 from shapebench.hashing import array_digest, stable_seed
-from shapebench.train.checkpoints import describe, warn_corrupt
 
 CONTEXTS_VERSION = "contexts-v1"
 

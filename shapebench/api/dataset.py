@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from shapebench.api.errors import describe, warn_corrupt
 from shapebench.api.options import NoOptions
 from shapebench.api.types import EVAL_SPLITS, Category, ObjectData, ObjectRef, Supervision
 from shapebench.hashing import stable_hash, stable_seed
@@ -31,7 +32,6 @@ from shapebench.preprocess import (
     PreprocessParams,
     prepare_mesh,
 )
-from shapebench.train.checkpoints import describe, warn_corrupt
 
 
 class ObjectLoadError(RuntimeError):

@@ -7,6 +7,9 @@ status 2 instead of showing a traceback (set ``SHAPEBENCH_DEBUG=1`` to see it an
 
 from __future__ import annotations
 
+import warnings
+from pathlib import Path
+
 
 class ShapebenchError(Exception):
     """A problem with the user's input or environment, reported without a traceback."""
@@ -51,3 +54,24 @@ class ConfigError(ShapebenchError):
 
 class Interrupted(ShapebenchError):
     """Ctrl-C or SIGTERM stopped the work; the message says what was kept (exit status 130)."""
+
+
+# -- damaged files ------------------------------------------------------------------------
+
+
+class CorruptFileWarning(UserWarning):
+    """A cached file could not be read; it is deleted and rebuilt (the warning names it)."""
+
+
+def warn_corrupt(path: Path, reason: str, action: str) -> None:
+    """One line naming the damaged file, why it is unusable and what happens instead."""
+    warnings.warn(f"{path} is damaged ({reason}); {action}", CorruptFileWarning, stacklevel=3)
+
+
+def describe(exc: BaseException) -> str:
+    """An exception as one short line: its type and the first line of its message."""
+    lines = str(exc).strip().splitlines()
+    first = lines[0].strip() if lines else ""
+    if len(first) > 200:
+        first = first[:197] + "..."
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__

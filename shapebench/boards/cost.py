@@ -10,31 +10,26 @@ wall time of the method's ``complete_batch`` call divided by the objects in it).
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from shapebench.store.records import REFERENCE_TAG
+from shapebench.train.lightning_fit import device_count, device_hours
+
 #: Columns :func:`row_costs` returns, besides ``variant``.
 COST_COLUMNS = [
-    "seconds_per_object", "train_device_hours", "train_wall_seconds", "train_device",
-    "train_epochs", "train_final_loss", "train_weights", "trainings",
-]  # fmt: skip
-#: The tag of a training run whose weights are a shipped reference checkpoint.
-REFERENCE_TAG = "shapebench.reference"
-
-
-def device_count(device: str) -> int:
-    """Devices of a ``training_device`` tag (``cpu x1``, ``cuda x4 (NVIDIA H100)``); 1 if none."""
-    match = re.search(r"\bx(\d+)", device or "")
-    return int(match.group(1)) if match else 1
-
-
-def device_hours(wall_seconds: float, devices: int) -> float:
-    """Devices held times wall time, in hours: what a cluster bills."""
-    return float(wall_seconds) * max(int(devices), 1) / 3600.0
+    "seconds_per_object",
+    "train_device_hours",
+    "train_wall_seconds",
+    "train_device",
+    "train_epochs",
+    "train_final_loss",
+    "train_weights",
+    "trainings",
+]
 
 
 @dataclass
@@ -57,10 +52,15 @@ class TrainingCost:
         wall = float(metrics.get("summary/wall_seconds", math.nan))
         # Trainings logged before device-hours were recorded: derive them from the device tag.
         hours = metrics.get("summary/device_hours", device_hours(wall, device_count(device)))
-        return cls(run.info.run_id, wall, device, float(hours),
-                   float(metrics.get("summary/epochs", math.nan)),
-                   float(metrics.get("summary/final_loss", math.nan)),
-                   "reference" if tags.get(REFERENCE_TAG) else "local")  # fmt: skip
+        return cls(
+            run.info.run_id,
+            wall,
+            device,
+            float(hours),
+            float(metrics.get("summary/epochs", math.nan)),
+            float(metrics.get("summary/final_loss", math.nan)),
+            "reference" if tags.get(REFERENCE_TAG) else "local",
+        )
 
 
 def training_costs(client: Any, run_ids: list[str]) -> dict[str, TrainingCost]:
@@ -78,24 +78,27 @@ def row_costs(client: Any, runs: pd.DataFrame, per_object: pd.DataFrame) -> pd.D
     """Per variant: test-time seconds per successfully completed object (over all its cells),
     and the mean cost of its trainings (one per seed; NaN for methods that do not train)."""
     ok = per_object[per_object["status"] == "ok"]
-    seconds = (ok.groupby("variant")["seconds"].mean() if "seconds" in ok
-               else pd.Series(dtype=float))  # fmt: skip
+    seconds = ok.groupby("variant")["seconds"].mean() if "seconds" in ok else pd.Series(dtype=float)
     ids = runs.get("training_run_id", pd.Series("", index=runs.index)).fillna("")
     costs = training_costs(client, ids.tolist())
     rows = []
     for variant, g in runs.assign(_tr=ids).groupby("variant.key"):
         trained = [costs[r] for r in sorted(set(g["_tr"])) if r in costs]
-        row: dict[str, Any] = {"variant": variant,
-                               "seconds_per_object": float(seconds.get(variant, math.nan)),
-                               "trainings": len(trained)}  # fmt: skip
+        row: dict[str, Any] = {
+            "variant": variant,
+            "seconds_per_object": float(seconds.get(variant, math.nan)),
+            "trainings": len(trained),
+        }
         if trained:
             table = pd.DataFrame([asdict(c) for c in trained])
-            row.update(train_device_hours=float(table["device_hours"].mean()),
-                       train_wall_seconds=float(table["wall_seconds"].mean()),
-                       train_device=", ".join(sorted(set(table["device"]) - {""})),
-                       train_epochs=float(table["epochs"].mean()),
-                       train_final_loss=float(table["final_loss"].mean()),
-                       train_weights=", ".join(sorted(set(table["weights"]))))  # fmt: skip
+            row.update(
+                train_device_hours=float(table["device_hours"].mean()),
+                train_wall_seconds=float(table["wall_seconds"].mean()),
+                train_device=", ".join(sorted(set(table["device"]) - {""})),
+                train_epochs=float(table["epochs"].mean()),
+                train_final_loss=float(table["final_loss"].mean()),
+                train_weights=", ".join(sorted(set(table["weights"]))),
+            )
         rows.append(row)
     out = pd.DataFrame(rows, columns=["variant", *COST_COLUMNS])
     for column in ("train_device", "train_weights"):

@@ -52,8 +52,16 @@ def curve_table(scored: pd.DataFrame, scale: float = 1.0) -> pd.DataFrame:
     for (label, ctx), g in scored.groupby(["label", "context"], sort=True):
         v = g["scored"].to_numpy(dtype=float) * scale
         lo, hi = bootstrap_band(v)
-        rows.append({"label": label, "context": int(ctx), "mean": float(np.nanmean(v)),
-                     "low": lo, "high": hi, "n": int(np.isfinite(v).sum())})  # fmt: skip
+        rows.append(
+            {
+                "label": label,
+                "context": int(ctx),
+                "mean": float(np.nanmean(v)),
+                "low": lo,
+                "high": hi,
+                "n": int(np.isfinite(v).sum()),
+            }
+        )
     return pd.DataFrame(rows, columns=["label", "context", "mean", "low", "high", "n"])
 
 
@@ -91,8 +99,13 @@ def context_curve(
     ax.set_title(title, fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    fig.text(0.01, 0.01, f"band: {LEVEL:.0%} bootstrap interval of the mean over objects",
-             fontsize=7, color="#666666")  # fmt: skip
+    fig.text(
+        0.01,
+        0.01,
+        f"band: {LEVEL:.0%} bootstrap interval of the mean over objects",
+        fontsize=7,
+        color="#666666",
+    )
     fig.subplots_adjust(left=0.1, right=0.72, bottom=0.14, top=0.92)
     return fig
 
@@ -112,21 +125,39 @@ def pareto(points: pd.DataFrame, xlabel: str, ylabel: str, title: str):
         h = p["train_device_hours"]
         trained = bool(np.isfinite(h))
         size = 40 + 900 * np.sqrt(h / top) if trained and top > 0 else 40
-        ax.scatter([p["seconds_per_object"]], [p["value"]], s=size, color=cmap[i], alpha=0.75,
-                   edgecolors=cmap[i], linewidths=1.5,
-                   facecolors=cmap[i] if trained else "none", label=p["label"])  # fmt: skip
+        ax.scatter(
+            [p["seconds_per_object"]],
+            [p["value"]],
+            s=size,
+            color=cmap[i],
+            alpha=0.75,
+            edgecolors=cmap[i],
+            linewidths=1.5,
+            facecolors=cmap[i] if trained else "none",
+            label=p["label"],
+        )
         name = _wrap(p["label"])
         note = f"{name}\n{h:.2g} device-h" if trained else f"{name}\nno training"
-        ax.annotate(note, (p["seconds_per_object"], p["value"]), fontsize=7,
-                    xytext=(6, 6), textcoords="offset points")  # fmt: skip
+        ax.annotate(
+            note,
+            (p["seconds_per_object"], p["value"]),
+            fontsize=7,
+            xytext=(6, 6),
+            textcoords="offset points",
+        )
     ax.set_xscale("log")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.margins(0.2)
-    fig.text(0.01, 0.01, "marker area: training device-hours (hollow: trains nothing); "
-             "lower left is better", fontsize=7, color="#666666")  # fmt: skip
+    fig.text(
+        0.01,
+        0.01,
+        "marker area: training device-hours (hollow: trains nothing); lower left is better",
+        fontsize=7,
+        color="#666666",
+    )
     fig.subplots_adjust(left=0.1, right=0.97, bottom=0.14, top=0.92)
     return fig
 
@@ -194,16 +225,24 @@ def board_figures(board: Board) -> dict[str, Any]:
     unit = f" x{scale:g}" if scale != 1 else ""
     where = f"{board.dataset} / {board.split}"
     ylabel = f"{board.metric}{unit} (mean over objects)"
-    curve = context_curve(board.scored, [r.label for r in board.rows], ylabel,
-                          f"{where}: {board.metric} vs context size", scale)  # fmt: skip
+    curve = context_curve(
+        board.scored,
+        [r.label for r in board.rows],
+        ylabel,
+        f"{where}: {board.metric} vs context size",
+        scale,
+    )
     points, ctx = pareto_points(board)
     try:
         frame = MetricCard.from_tag(board.card).frame
     except ValueError:
         frame = board.frame
-    front = pareto(points, "test-time seconds per object (log scale)",
-                   f"{board.metric}{unit} at {ctx} points",
-                   f"{where}: accuracy vs cost ({frame} frame)")  # fmt: skip
+    front = pareto(
+        points,
+        "test-time seconds per object (log scale)",
+        f"{board.metric}{unit} at {ctx} points",
+        f"{where}: accuracy vs cost ({frame} frame)",
+    )
     return {"chamfer": curve, "pareto": front}
 
 
@@ -235,9 +274,14 @@ def board_run(tracker: Any, board: Board) -> str:
     run = tracker.client.create_run(
         board.experiment_id,
         run_name=name,
-        tags={"shapebench.kind": BOARD_KIND, "board.frame": board.frame,
-              "board.metric": board.metric, "dataset": board.dataset, "split": board.split},
-    )  # fmt: skip
+        tags={
+            "shapebench.kind": BOARD_KIND,
+            "board.frame": board.frame,
+            "board.metric": board.metric,
+            "dataset": board.dataset,
+            "split": board.split,
+        },
+    )
     tracker.client.set_terminated(run.info.run_id)
     return run.info.run_id
 

@@ -102,8 +102,7 @@ class Artifacts:
         self.client, self.run_id, self.dst = client, run_id, dst
         uri = client.get_run(run_id).info.artifact_uri
         parsed = urlparse(uri)
-        self.local = (Path(url2pathname(parsed.path)) if parsed.scheme in ("", "file")
-                      else None)  # fmt: skip
+        self.local = Path(url2pathname(parsed.path)) if parsed.scheme in ("", "file") else None
 
     def path(self, name: str) -> Path:
         if self.local is not None and (self.local / name).exists():
@@ -135,15 +134,18 @@ def _cell_pictures(client: Any, run_id: str, dst: Path) -> dict[str, dict[str, n
     contexts: dict[str, np.ndarray] = {}
     try:
         with np.load(store.path("contexts.npz")) as c:
-            contexts = {str(o).replace("/", "__"): p for o, p in zip(c["objects"], c["points"],
-                                                                     strict=True)}  # fmt: skip
+            contexts = {
+                str(o).replace("/", "__"): p for o, p in zip(c["objects"], c["points"], strict=True)
+            }
     except Exception:  # no contexts logged: the grid shows completions only
         pass
     for path in plys:
         stem = Path(path).stem
         cloud = trimesh.load(store.path(path))
-        out[stem] = {"completion": np.asarray(cloud.vertices, np.float32),
-                     "context": contexts.get(stem, np.zeros((0, 3), np.float32))}  # fmt: skip
+        out[stem] = {
+            "completion": np.asarray(cloud.vertices, np.float32),
+            "context": contexts.get(stem, np.zeros((0, 3), np.float32)),
+        }
     return out
 
 
@@ -169,19 +171,37 @@ def _grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
     grids, spreads = [], []
     for stem in chosen:
         completions = {k: p[stem]["completion"] for k, p in cells.items() if stem in p}
-        context_points = {k[1]: p[stem]["context"] for k, p in cells.items()
-                          if stem in p and len(p[stem]["context"])}  # fmt: skip
-        truth = next((p[stem]["ground_truth"] for p in cells.values()
-                      if stem in p and "ground_truth" in p[stem]), None)  # fmt: skip
+        context_points = {
+            k[1]: p[stem]["context"]
+            for k, p in cells.items()
+            if stem in p and len(p[stem]["context"])
+        }
+        truth = next(
+            (
+                p[stem]["ground_truth"]
+                for p in cells.values()
+                if stem in p and "ground_truth" in p[stem]
+            ),
+            None,
+        )
         obj = stem.replace("__", "/")
-        fig = qualitative_grid([r.label for r in board.rows], board.contexts, completions,
-                               context_points, truth,
-                               f"{board.dataset}/{board.split}: {obj}")  # fmt: skip
+        fig = qualitative_grid(
+            [r.label for r in board.rows],
+            board.contexts,
+            completions,
+            context_points,
+            truth,
+            f"{board.dataset}/{board.split}: {obj}",
+        )
         grids.append((obj, _data_uri(png_bytes(fig))))
         for (label, ctx), p in sorted(cells.items()):
             if stem in p and "spread" in p[stem]:
-                spreads.append((f"{label}, {ctx} points: {obj}",
-                                _spread_picture(p[stem], f"{label} k={ctx}: {obj}")))  # fmt: skip
+                spreads.append(
+                    (
+                        f"{label}, {ctx} points: {obj}",
+                        _spread_picture(p[stem], f"{label} k={ctx}: {obj}"),
+                    )
+                )
     return grids, spreads
 
 
@@ -290,10 +310,12 @@ def _tables(board: Board) -> str:
 
     ctxs = board.contexts
     head = "".join(f"<th>{c}</th>" for c in ctxs)
-    raw = [f'<table class="sortable" id="raw-{_e(board.split)}"><thead><tr><th>method</th>'
-           f"{head}<th>objects</th><th>failed</th><th>test time / object</th>"
-           "<th>training device-hours</th><th class=\"wrap\">training</th></tr></thead>"
-           "<tbody>"]  # fmt: skip
+    raw = [
+        f'<table class="sortable" id="raw-{_e(board.split)}"><thead><tr><th>method</th>'
+        f"{head}<th>objects</th><th>failed</th><th>test time / object</th>"
+        '<th>training device-hours</th><th class="wrap">training</th></tr></thead>'
+        "<tbody>"
+    ]
     for row in board.rows:
         r = board.raw[board.raw.variant == row.variant]
         cost = _cost(board, row)
@@ -310,11 +332,16 @@ def _tables(board: Board) -> str:
             + "</td></tr>"
         )
     raw.append("</tbody></table>")
-    norm = [f'<table class="sortable" id="norm-{_e(board.split)}"><thead><tr><th>method</th>'
-            f"{head}</tr></thead><tbody>"]  # fmt: skip
+    norm = [
+        f'<table class="sortable" id="norm-{_e(board.split)}"><thead><tr><th>method</th>'
+        f"{head}</tr></thead><tbody>"
+    ]
     for row in board.rows:
-        norm.append(f"<tr><td>{_e(row.label)}</td>"
-                    + "".join(_norm_cell(board, row, c) for c in ctxs) + "</tr>")  # fmt: skip
+        norm.append(
+            f"<tr><td>{_e(row.label)}</td>"
+            + "".join(_norm_cell(board, row, c) for c in ctxs)
+            + "</tr>"
+        )
     norm.append("</tbody></table>")
     return "\n".join(raw), "\n".join(norm)
 
@@ -333,18 +360,24 @@ def _winners(board: Board) -> str:
             continue
         tied = [labels.get(v, v) for v in s[s.tied].variant]
         text = f"<b>{ctx} points</b>: <b>{_e(labels.get(best.iloc[0].variant, ''))}</b>"
-        text += (f" (not significantly better than {_e(', '.join(tied))})" if tied
-                 else " (significantly better than every other row)")  # fmt: skip
+        text += (
+            f" (not significantly better than {_e(', '.join(tied))})"
+            if tied
+            else " (significantly better than every other row)"
+        )
         items.append(f"<li>{text}</li>")
-    return (f"<p>Winner ({direction} mean) per context size, paired Wilcoxon over the same "
-            f"objects, Holm-corrected:</p><ul class=\"winners\">{''.join(items)}</ul>")  # fmt: skip
+    return (
+        f"<p>Winner ({direction} mean) per context size, paired Wilcoxon over the same "
+        f'objects, Holm-corrected:</p><ul class="winners">{"".join(items)}</ul>'
+    )
 
 
 def _provenance(board: Board) -> str:
     runs = board.runs.copy() if board.runs is not None else pd.DataFrame()
     if {"plugin.distribution", "plugin.version"} <= set(runs.columns):
-        runs["_plugin"] = (runs["plugin.distribution"].fillna("") + " "
-                           + runs["plugin.version"].fillna("")).str.strip()  # fmt: skip
+        runs["_plugin"] = (
+            runs["plugin.distribution"].fillna("") + " " + runs["plugin.version"].fillna("")
+        ).str.strip()
 
     def used(col: str) -> str:
         if col not in runs:
@@ -382,9 +415,11 @@ def _environment() -> str:
             versions.append(f"{dist} {importlib.metadata.version(dist)}")
         except importlib.metadata.PackageNotFoundError:
             continue
-    return (f"shapebench {_e(__version__)} at commit <code>{_e(git_commit())}</code>; Python "
-            f"{_e(platform.python_version())} on {_e(platform.platform())}; "
-            f"{_e(', '.join(versions))}")  # fmt: skip
+    return (
+        f"shapebench {_e(__version__)} at commit <code>{_e(git_commit())}</code>; Python "
+        f"{_e(platform.python_version())} on {_e(platform.platform())}; "
+        f"{_e(', '.join(versions))}"
+    )
 
 
 def _section(sec: Section) -> str:
@@ -411,30 +446,39 @@ def _section(sec: Section) -> str:
         *(
             f'<div class="figure" id="fig-{name}-{sid}">{svg}</div>'
             for name, svg in sec.figures.items()
-        ),  # fmt: skip
+        ),
         "<h3>Completions</h3>",
     ]
     if sec.grids:
-        parts.append('<p class="note">Rows: methods; columns: context sizes (first row: the '
-                     "context points every method was given, and the ground truth). The same "
-                     "objects for every method.</p>")  # fmt: skip
-        parts += [f'<div class="pictures"><img alt="qualitative grid {_e(obj)}" src="{uri}">'
-                  "</div>" for obj, uri in sec.grids]  # fmt: skip
+        parts.append(
+            '<p class="note">Rows: methods; columns: context sizes (first row: the '
+            "context points every method was given, and the ground truth). The same "
+            "objects for every method.</p>"
+        )
+        parts += [
+            f'<div class="pictures"><img alt="qualitative grid {_e(obj)}" src="{uri}"></div>'
+            for obj, uri in sec.grids
+        ]
     else:
         parts.append('<p class="note">No pictures logged by these runs.</p>')
     if sec.spreads:
-        parts.append("<h3>Posterior uncertainty</h3><p class=\"note\">Completions coloured by "
-                     "the per-point spread over posterior samples (RMS distance to each "
-                     "sample's nearest point): where the method is unsure.</p>")  # fmt: skip
-        parts += [f'<div class="pictures"><img alt="{_e(cap)}" src="{uri}"></div>'
-                  for cap, uri in sec.spreads]  # fmt: skip
+        parts.append(
+            '<h3>Posterior uncertainty</h3><p class="note">Completions coloured by '
+            "the per-point spread over posterior samples (RMS distance to each "
+            "sample's nearest point): where the method is unsure.</p>"
+        )
+        parts += [
+            f'<div class="pictures"><img alt="{_e(cap)}" src="{uri}"></div>'
+            for cap, uri in sec.spreads
+        ]
     parts += ["<h3>Provenance</h3>", _provenance(b)]
     return "\n".join(parts)
 
 
 def render_html(sections: list[Section], dataset: str, command: str, uri: str) -> str:
-    toc = " · ".join(f'<a href="#split-{_e(s.board.split)}">{_e(s.board.split)}</a>'
-                     for s in sections)  # fmt: skip
+    toc = " · ".join(
+        f'<a href="#split-{_e(s.board.split)}">{_e(s.board.split)}</a>' for s in sections
+    )
     body = "\n".join(_section(s) for s in sections)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
@@ -472,8 +516,9 @@ def build_report(
         splits = splits_with_runs(tracker, dataset)
     sections = []
     for split in splits:
-        board = build_board(tracker, dataset, split, reference, metric, frame, data_version,
-                            all_variants)  # fmt: skip
+        board = build_board(
+            tracker, dataset, split, reference, metric, frame, data_version, all_variants
+        )
         if board is None:
             continue
         md = board_path(out_dir, dataset, split, frame)

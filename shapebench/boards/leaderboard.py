@@ -100,8 +100,10 @@ def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
         max_results=50000,
     )
     # Cells are read through their record (shapebench.store.records), the same code that wrote them.
-    rows = [{"run_id": r.info.run_id, "start": r.info.start_time, **CellRecord.from_run(r).row()}
-            for r in runs]  # fmt: skip
+    rows = [
+        {"run_id": r.info.run_id, "start": r.info.start_time, **CellRecord.from_run(r).row()}
+        for r in runs
+    ]
     table = pd.DataFrame(rows)
     if "variant.key" in table:  # runs logged before variant keys have none (see _select_runs)
         table["variant.key"] = table["variant.key"].replace("", np.nan)
@@ -172,8 +174,11 @@ def _select_runs(
     others = runs[runs["dataset.fingerprint"] != fingerprint]
     if len(others):
         counts = others.groupby("dataset.fingerprint").size()
-        roots = others.groupby("dataset.fingerprint")["dataset.data_root"].first() if (
-            "dataset.data_root" in others) else pd.Series(dtype=str)  # fmt: skip
+        roots = (
+            others.groupby("dataset.fingerprint")["dataset.data_root"].first()
+            if ("dataset.data_root" in others)
+            else pd.Series(dtype=str)
+        )
         listed = "; ".join(
             f"{fp} ({n} runs{', ' + roots[fp] if fp in roots and roots[fp] else ''})"
             for fp, n in counts.items()
@@ -233,9 +238,19 @@ def _rows(runs: pd.DataFrame) -> list[Row]:
         if overrides.get("+normals"):  # never under the paper's row name
             display = f"{display} + test-time normals"
         seeds, checkpoints = _seeds_and_checkpoints(g)
-        rows.append(Row(str(key), first["_label"], first["method"], display, overrides,
-                        _text(first.get("method.code")), _text(first.get("checkpoint_key")),
-                        seeds, checkpoints))  # fmt: skip
+        rows.append(
+            Row(
+                str(key),
+                first["_label"],
+                first["method"],
+                display,
+                overrides,
+                _text(first.get("method.code")),
+                _text(first.get("checkpoint_key")),
+                seeds,
+                checkpoints,
+            )
+        )
 
     def rank(row: Row) -> tuple[int, str]:
         base = row.display
@@ -325,11 +340,29 @@ def build_board(
     from shapebench.boards.cost import row_costs
 
     return Board(
-        dataset, split, metric, card, reference, sorted(raw["context"].unique().tolist()),
-        rows, raw, normalized, board_stats.significance(scored, higher), note,
-        paper_table(dataset, split), exp_id, fingerprint, str(root or ""), frame, protocol,
-        left_out, scored, scale, row_costs(tracker.client, runs, scored), runs,
-    )  # fmt: skip
+        dataset,
+        split,
+        metric,
+        card,
+        reference,
+        sorted(raw["context"].unique().tolist()),
+        rows,
+        raw,
+        normalized,
+        board_stats.significance(scored, higher),
+        note,
+        paper_table(dataset, split),
+        exp_id,
+        fingerprint,
+        str(root or ""),
+        frame,
+        protocol,
+        left_out,
+        scored,
+        scale,
+        row_costs(tracker.client, runs, scored),
+        runs,
+    )
 
 
 def _scale(card: str) -> float:
@@ -572,9 +605,25 @@ def tidy_csv(board: Board) -> pd.DataFrame:
             variant="",
             kind=p.kind.map({"raw_x1000": "raw", "normalized": "normalized"}),
         )
-        out = pd.concat([out, p[["source", "display", "context", "kind", "mean", "std",
-                                 "method", "label", "variant"]]],
-                        ignore_index=True)  # fmt: skip
+        out = pd.concat(
+            [
+                out,
+                p[
+                    [
+                        "source",
+                        "display",
+                        "context",
+                        "kind",
+                        "mean",
+                        "std",
+                        "method",
+                        "label",
+                        "variant",
+                    ]
+                ],
+            ],
+            ignore_index=True,
+        )
     if board.costs is not None:  # the row's cost, on each of its lines
         from shapebench.boards.cost import COST_COLUMNS
 
@@ -589,10 +638,33 @@ def tidy_csv(board: Board) -> pd.DataFrame:
         fingerprint=board.fingerprint,
     )
     cols = [
-        "source", "dataset", "split", "metric", "frame", "fingerprint", "kind", "method", "label",
-        "variant", "display", "context", "mean", "std", "mean_ok", "std_ok", "n", "n_ok",
-        "failures", "best", "tied", "p_vs_best", "p_holm", "n_pairs", "reference", "card",
-    ]  # fmt: skip
+        "source",
+        "dataset",
+        "split",
+        "metric",
+        "frame",
+        "fingerprint",
+        "kind",
+        "method",
+        "label",
+        "variant",
+        "display",
+        "context",
+        "mean",
+        "std",
+        "mean_ok",
+        "std_ok",
+        "n",
+        "n_ok",
+        "failures",
+        "best",
+        "tied",
+        "p_vs_best",
+        "p_holm",
+        "n_pairs",
+        "reference",
+        "card",
+    ]
     if board.costs is not None:
         cols += COST_COLUMNS
     for c in cols:

@@ -130,13 +130,29 @@ def significance(
             others.append(variant)
             pvals.append(paired_p(both.iloc[:, 0].to_numpy(), both.iloc[:, 1].to_numpy()))
             pairs.append(len(both))
-        rows.append({"variant": best, "context": int(ctx), "best": True, "tied": False,
-                     "p_vs_best": np.nan, "p_holm": np.nan,
-                     "n_pairs": len(best_values)})  # fmt: skip
+        rows.append(
+            {
+                "variant": best,
+                "context": int(ctx),
+                "best": True,
+                "tied": False,
+                "p_vs_best": np.nan,
+                "p_holm": np.nan,
+                "n_pairs": len(best_values),
+            }
+        )
         for variant, p, adj, n in zip(others, pvals, holm(pvals), pairs, strict=True):
-            rows.append({"variant": variant, "context": int(ctx), "best": False,
-                         "tied": adj >= alpha, "p_vs_best": p, "p_holm": adj,
-                         "n_pairs": n})  # fmt: skip
+            rows.append(
+                {
+                    "variant": variant,
+                    "context": int(ctx),
+                    "best": False,
+                    "tied": adj >= alpha,
+                    "p_vs_best": p,
+                    "p_holm": adj,
+                    "n_pairs": n,
+                }
+            )
     return pd.DataFrame(
         rows, columns=["variant", "context", "best", "tied", "p_vs_best", "p_holm", "n_pairs"]
     )

@@ -157,8 +157,12 @@ def _hooks() -> list[str]:
 
 def _card_values() -> list[str]:
     out = ["#### Allowed values of the card's fields", ""]
-    for field, table in (("power", POWERS), ("reduction", REDUCTIONS),
-                         ("direction", DIRECTIONS), ("combine", COMBINES)):  # fmt: skip
+    for field, table in (
+        ("power", POWERS),
+        ("reduction", REDUCTIONS),
+        ("direction", DIRECTIONS),
+        ("combine", COMBINES),
+    ):
         out += [f"`{field}`:", "", "| value | meaning |", "|---|---|"]
         out += [f"| `{value!r}` | {meaning} |" for value, meaning in table.items()]
         out.append("")
@@ -197,6 +201,7 @@ def _builtin_cards() -> list[str]:
 
 def _splits() -> list[str]:
     from shapebench.api import types
+
     names = ("TRAIN", "TRAINED", "NOVEL")
     values = ", ".join(f"`{n} = {getattr(types, n)!r}`" for n in names)
     return ["### Split names", "", values + ": " + _inline(_comments(types)["TRAIN"]), ""]
@@ -204,6 +209,7 @@ def _splits() -> list[str]:
 
 def _options() -> list[str]:
     from shapebench.api import options
+
     out = ["## Options", "", *_markdown(inspect.getdoc(options) or ""), ""]
     out += [
         "Conventions: set the class attribute `Options` of a method or dataset to a frozen "
@@ -445,8 +451,13 @@ def _markdown(doc: str) -> list[str]:
                 block.append(lines[i][4:])
                 i += 1
             lang = "toml" if any(b.startswith("[") for b in block) else "python"
-            out += ["", f"```{lang}", *textwrap.dedent("\n".join(block)).strip().splitlines(),
-                    "```", ""]  # fmt: skip
+            out += [
+                "",
+                f"```{lang}",
+                *textwrap.dedent("\n".join(block)).strip().splitlines(),
+                "```",
+                "",
+            ]
             continue
         out.append(_inline(line))
         i += 1

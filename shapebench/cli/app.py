@@ -27,8 +27,9 @@ class Group(click.Group):
         try:
             return super().invoke(ctx)
         except Interrupted as exc:
-            click.echo(f"\nInterrupted: {exc.message}" + (f"; {exc.hint}" if exc.hint else ""),
-                       err=True)  # fmt: skip
+            click.echo(
+                f"\nInterrupted: {exc.message}" + (f"; {exc.hint}" if exc.hint else ""), err=True
+            )
             sys.exit(130)
         except ShapebenchError as exc:
             if os.environ.get("SHAPEBENCH_DEBUG"):
@@ -102,7 +103,7 @@ def trainer_options(f):
                 "--checkpoint-every-epochs",
                 dict(
                     type=int, default=None, help="Save the resumable checkpoint every N epochs [1]."
-                ),  # fmt: skip
+                ),
             ),
             (
                 "--checkpoint-minutes",
@@ -110,7 +111,7 @@ def trainer_options(f):
                     type=float,
                     default=None,
                     help="Also save it at the first epoch end after M minutes [10].",
-                ),  # fmt: skip
+                ),
             ),
         ]
     ):
@@ -238,9 +239,12 @@ def cli() -> None:
     "with a per-point spread.",
 )
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
-@click.option("--retrain", is_flag=True,
-              help="Train locally even where shapebench ships a reference checkpoint of the "
-              "same key (the rows are then labelled weights=local).")  # fmt: skip
+@click.option(
+    "--retrain",
+    is_flag=True,
+    help="Train locally even where shapebench ships a reference checkpoint of the "
+    "same key (the rows are then labelled weights=local).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
 @click.option(
     "--label",
@@ -248,12 +252,21 @@ def cli() -> None:
     help="Leaderboard row name for this variant [default: the method name with the options "
     "that differ from the profile, e.g. gauss[sigma=0.05]].",
 )
-@click.option("--launcher", type=click.Choice(["inline", "slurm", "submitit-local"]),
-              default="inline", show_default=True,
-              help="slurm: submit the training and the cells as SLURM jobs (see sweep --help "
-              "and docs/cluster.md); submitit-local: the same jobs on this machine.")  # fmt: skip
-@click.option("--slurm", "slurm_opts", multiple=True, metavar="KEY=VALUE",
-              help="SLURM settings, as in a sweep file's launcher block (repeatable).")  # fmt: skip
+@click.option(
+    "--launcher",
+    type=click.Choice(["inline", "slurm", "submitit-local"]),
+    default="inline",
+    show_default=True,
+    help="slurm: submit the training and the cells as SLURM jobs (see sweep --help "
+    "and docs/cluster.md); submitit-local: the same jobs on this machine.",
+)
+@click.option(
+    "--slurm",
+    "slurm_opts",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="SLURM settings, as in a sweep file's launcher block (repeatable).",
+)
 @click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
 @protocol_options
 @plugin_options
@@ -333,8 +346,18 @@ def run(
         sweep_file = run_as_sweep(req, settings)
         click.echo(f"as a sweep of one method: {sweep_file}")
         given = {k: v for k, v in trainer.items() if v is not None}
-        cluster_sweep(load_sweep(sweep_file), sweep_file, settings, given,
-                      _parse(slurm_opts, "--slurm"), launcher, 1, wait, None, None)  # fmt: skip
+        cluster_sweep(
+            load_sweep(sweep_file),
+            sweep_file,
+            settings,
+            given,
+            _parse(slurm_opts, "--slurm"),
+            launcher,
+            1,
+            wait,
+            None,
+            None,
+        )
         return
     outcome = evaluate(req, settings, lambda seed: _trainer(settings, seed, **trainer))
     print_summary(outcome, settings)
@@ -354,10 +377,12 @@ def _exit_if_all_failed(outcomes) -> None:
             f"{o.variant.label if o.variant else o.method.name} {c.split} k={c.context_size}"
             for o, c in bad
         )
-        click.secho(f"Error: every object failed in {len(bad)} cell(s): {cells}", fg="red",
-                    err=True)  # fmt: skip
-        click.echo("  the reasons are listed above; the runs are kept in MLflow as evidence",
-                   err=True)  # fmt: skip
+        click.secho(
+            f"Error: every object failed in {len(bad)} cell(s): {cells}", fg="red", err=True
+        )
+        click.echo(
+            "  the reasons are listed above; the runs are kept in MLflow as evidence", err=True
+        )
         sys.exit(1)
 
 
@@ -377,9 +402,12 @@ def _parse(pairs, flag) -> dict:
 @cli.command()
 @click.argument("sweep_file", type=click.Path(dir_okay=False))
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
-@click.option("--retrain", is_flag=True,
-              help="Train locally even where shapebench ships a reference checkpoint of the "
-              "same key (the rows are then labelled weights=local).")  # fmt: skip
+@click.option(
+    "--retrain",
+    is_flag=True,
+    help="Train locally even where shapebench ships a reference checkpoint of the "
+    "same key (the rows are then labelled weights=local).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
 @click.option(
     "--launcher",
@@ -397,19 +425,41 @@ def _parse(pairs, flag) -> dict:
     show_default=True,
     help="Worker processes of --launcher local (jobs at once for submitit-local).",
 )
-@click.option("--slurm", "slurm_opts", multiple=True, metavar="KEY=VALUE",
-              help="Override a key of the sweep file's launcher block, e.g. --slurm "
-              "partition=gpu --slurm time=120 (repeatable).")  # fmt: skip
-@click.option("--status", is_flag=True,
-              help="Show finished, running, queued and failed cells with job logs.")  # fmt: skip
+@click.option(
+    "--slurm",
+    "slurm_opts",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override a key of the sweep file's launcher block, e.g. --slurm "
+    "partition=gpu --slurm time=120 (repeatable).",
+)
+@click.option(
+    "--status", is_flag=True, help="Show finished, running, queued and failed cells with job logs."
+)
 @click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
 @click.option("--worker", type=int, default=0, hidden=True)
 @protocol_options
 @trainer_options
 @store_options
-def sweep(sweep_file, force, retrain, quiet, launcher, jobs, slurm_opts, status, wait, worker,
-          frame, context_normals, profile, tracking_uri, cache_dir, workspace,
-          **trainer) -> None:  # fmt: skip
+def sweep(
+    sweep_file,
+    force,
+    retrain,
+    quiet,
+    launcher,
+    jobs,
+    slurm_opts,
+    status,
+    wait,
+    worker,
+    frame,
+    context_normals,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+    **trainer,
+) -> None:
     """Run every method x dataset x split x context size x seed of SWEEP_FILE.
 
     Finished cells (same resolved config hash) are skipped: rerun the same command after
@@ -470,22 +520,35 @@ def sweep(sweep_file, force, retrain, quiet, launcher, jobs, slurm_opts, status,
             show_status(spec, settings, given, _parse(slurm_opts, "--slurm"), launcher)
             return
         if force or retrain:
-            raise ShapebenchError("--force and --retrain cannot be split between jobs",
-                                  "run such a sweep with --launcher inline")  # fmt: skip
-        cluster_sweep(spec, Path(sweep_file), settings, given, _parse(slurm_opts, "--slurm"),
-                      launcher, jobs, wait, frame, context_normals)  # fmt: skip
+            raise ShapebenchError(
+                "--force and --retrain cannot be split between jobs",
+                "run such a sweep with --launcher inline",
+            )
+        cluster_sweep(
+            spec,
+            Path(sweep_file),
+            settings,
+            given,
+            _parse(slurm_opts, "--slurm"),
+            launcher,
+            jobs,
+            wait,
+            frame,
+            context_normals,
+        )
         return
     if launcher == "local":
         from shapebench.sweeps.launchers import run_local
 
         if force or retrain:
-            raise ShapebenchError("--force and --retrain cannot be split between workers",
-                                  "run such a sweep with --launcher inline")  # fmt: skip
+            raise ShapebenchError(
+                "--force and --retrain cannot be split between workers",
+                "run such a sweep with --launcher inline",
+            )
         if jobs < 1:
             raise ShapebenchError(f"--jobs must be at least 1, got {jobs}")
         log_dir = settings.artifact_root.parent / "logs"
-        if run_local(_argv_after("sweep"),
-                     jobs, log_dir, click.echo):  # fmt: skip
+        if run_local(_argv_after("sweep"), jobs, log_dir, click.echo):
             click.secho("some workers failed; computing what they left here", fg="yellow")
 
     def report(method: str, dataset: str, exc: ShapebenchError) -> None:
@@ -518,9 +581,12 @@ def sweep(sweep_file, force, retrain, quiet, launcher, jobs, slurm_opts, status,
 @click.option("--method", "-m", required=True, help="Method name.")
 @click.option("--dataset", "-d", required=True, help="Dataset to train on (its train split).")
 @click.option("--seed", default=0, show_default=True, help="Training seed.")
-@click.option("--retrain", is_flag=True,
-              help="Train even where shapebench ships a reference checkpoint of the same key "
-              "(by default it is installed instead).")  # fmt: skip
+@click.option(
+    "--retrain",
+    is_flag=True,
+    help="Train even where shapebench ships a reference checkpoint of the same key "
+    "(by default it is installed instead).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="Less output.")
 @plugin_options
 @trainer_options
@@ -565,8 +631,7 @@ def train(
     if not resolved.cls.trains:
         raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
     ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet,
-                        retrain)  # fmt: skip
+    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet, retrain)
     click.echo(f"checkpoint: {record['path']}")
 
 
@@ -614,9 +679,19 @@ def train(
 )
 @store_options
 def leaderboard(
-    dataset, splits, reference, metric, frame, data_version, all_variants, out_dir, profile,
-    tracking_uri, cache_dir, workspace,
-) -> None:  # fmt: skip
+    dataset,
+    splits,
+    reference,
+    metric,
+    frame,
+    data_version,
+    all_variants,
+    out_dir,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
     """Build raw and normalised Chamfer tables for DATASET from the runs in MLflow.
 
     Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3.
@@ -636,33 +711,75 @@ def leaderboard(
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     for path in build_leaderboards(
-        settings, dataset, splits.split(",") if splits else None, reference, metric,
-        Path(out_dir), frame, data_version, all_variants,
-    ):  # fmt: skip
+        settings,
+        dataset,
+        splits.split(",") if splits else None,
+        reference,
+        metric,
+        Path(out_dir),
+        frame,
+        data_version,
+        all_variants,
+    ):
         click.echo(f"wrote {path}")
 
 
 @cli.command()
 @click.option("--dataset", "-d", required=True, help="Dataset whose runs to report.")
-@click.option("--split", "splits", default=None,
-              help="Comma-separated splits [default: every split with runs].")  # fmt: skip
-@click.option("--reference", default="msc-noopt", show_default=True,
-              help="Method the normalised table divides by (paper's eq. 8).")  # fmt: skip
+@click.option(
+    "--split",
+    "splits",
+    default=None,
+    help="Comma-separated splits [default: every split with runs].",
+)
+@click.option(
+    "--reference",
+    default="msc-noopt",
+    show_default=True,
+    help="Method the normalised table divides by (paper's eq. 8).",
+)
 @click.option("--metric", default=None, help="Metric to rank by [default: the dataset's].")
-@click.option("--frame", type=click.Choice(["unit-radius", "unit-diameter"]),
-              default="unit-radius", show_default=True,
-              help="Evaluation frame of the runs to report.")  # fmt: skip
-@click.option("--data-version", default=None, metavar="FINGERPRINT",
-              help="Report this data version (fingerprint prefix) [default: newest].")  # fmt: skip
-@click.option("--all-variants", is_flag=True,
-              help="Also show older variants that share a label with a newer one.")  # fmt: skip
-@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="leaderboards",
-              show_default=True, help="Where the page and its figures are written.")  # fmt: skip
+@click.option(
+    "--frame",
+    type=click.Choice(["unit-radius", "unit-diameter"]),
+    default="unit-radius",
+    show_default=True,
+    help="Evaluation frame of the runs to report.",
+)
+@click.option(
+    "--data-version",
+    default=None,
+    metavar="FINGERPRINT",
+    help="Report this data version (fingerprint prefix) [default: newest].",
+)
+@click.option(
+    "--all-variants",
+    is_flag=True,
+    help="Also show older variants that share a label with a newer one.",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="leaderboards",
+    show_default=True,
+    help="Where the page and its figures are written.",
+)
 @store_options
 def report(
-    dataset, splits, reference, metric, frame, data_version, all_variants, out_dir, profile,
-    tracking_uri, cache_dir, workspace,
-) -> None:  # fmt: skip
+    dataset,
+    splits,
+    reference,
+    metric,
+    frame,
+    data_version,
+    all_variants,
+    out_dir,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
     """Write one self-contained HTML page for DATASET from the runs in MLflow.
 
     Per split: the winner at each context size and the rows tied with it, the raw and
@@ -684,9 +801,16 @@ def report(
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     page, seconds = build_report(
-        settings, dataset, splits.split(",") if splits else None, reference, metric,
-        Path(out_dir), frame, data_version, all_variants,
-    )  # fmt: skip
+        settings,
+        dataset,
+        splits.split(",") if splits else None,
+        reference,
+        metric,
+        Path(out_dir),
+        frame,
+        data_version,
+        all_variants,
+    )
     click.echo(f"wrote {page} in {seconds:.1f} s (open it in a browser)")
 
 
@@ -706,23 +830,53 @@ def report(
     multiple=True,
     help="Also prepare the train split with what METHOD needs (repeatable).",
 )
-@click.option("--jobs", "-j", default=1, show_default=True,
-              help="Parallel worker processes (per array task on a cluster).")  # fmt: skip
-@click.option("--launcher", type=click.Choice(["inline", "slurm", "submitit-local"]),
-              default="inline", show_default=True,
-              help="slurm: an array of --shards jobs through submitit, each preparing every "
-              "n-th object; submitit-local: the same jobs on this machine.")  # fmt: skip
-@click.option("--shards", type=int, default=8, show_default=True,
-              help="Array tasks of a cluster launcher.")  # fmt: skip
-@click.option("--slurm", "slurm_opts", multiple=True, metavar="KEY=VALUE",
-              help="SLURM settings (partition=..., time=..., cpus_per_task=...), as in a sweep "
-              "file's launcher block.")  # fmt: skip
+@click.option(
+    "--jobs",
+    "-j",
+    default=1,
+    show_default=True,
+    help="Parallel worker processes (per array task on a cluster).",
+)
+@click.option(
+    "--launcher",
+    type=click.Choice(["inline", "slurm", "submitit-local"]),
+    default="inline",
+    show_default=True,
+    help="slurm: an array of --shards jobs through submitit, each preparing every "
+    "n-th object; submitit-local: the same jobs on this machine.",
+)
+@click.option(
+    "--shards", type=int, default=8, show_default=True, help="Array tasks of a cluster launcher."
+)
+@click.option(
+    "--slurm",
+    "slurm_opts",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="SLURM settings (partition=..., time=..., cpus_per_task=...), as in a sweep "
+    "file's launcher block.",
+)
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 @plugin_options
 @store_options
-def prepare(dataset, splits, categories, methods, jobs, launcher, shards, slurm_opts, quiet,
-            method_opts, dataset_opts, data_root, profile, tracking_uri, cache_dir,
-            workspace) -> None:  # fmt: skip
+def prepare(
+    dataset,
+    splits,
+    categories,
+    methods,
+    jobs,
+    launcher,
+    shards,
+    slurm_opts,
+    quiet,
+    method_opts,
+    dataset_opts,
+    data_root,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
     """Preprocess DATASET ahead of time (the paper's §4.1), with parallel workers.
 
     Results are cached per object, so an interrupted prepare resumes; 'run' prepares whatever
@@ -740,18 +894,26 @@ def prepare(dataset, splits, categories, methods, jobs, launcher, shards, slurm_
     from shapebench.evaluate.prepare import PrepareRequest, prepare_request
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
-    req = PrepareRequest(dataset, splits.split(",") if splits else None,
-                         categories.split(",") if categories else None, list(methods),
-                         _parse(method_opts, "-O"), _parse(dataset_opts, "-D"),
-                         data_root)  # fmt: skip
+    req = PrepareRequest(
+        dataset,
+        splits.split(",") if splits else None,
+        categories.split(",") if categories else None,
+        list(methods),
+        _parse(method_opts, "-O"),
+        _parse(dataset_opts, "-D"),
+        data_root,
+    )
     if launcher != "inline":
         from shapebench.sweeps.cluster import prepare_on_cluster
 
-        failed = prepare_on_cluster(req, settings, launcher, shards, jobs,
-                                    _parse(slurm_opts, "--slurm"), click.echo)  # fmt: skip
+        failed = prepare_on_cluster(
+            req, settings, launcher, shards, jobs, _parse(slurm_opts, "--slurm"), click.echo
+        )
         if failed:
-            raise ShapebenchError(f"{failed} of {shards} prepare jobs failed",
-                                  "see the logs above; rerun to finish the rest")  # fmt: skip
+            raise ShapebenchError(
+                f"{failed} of {shards} prepare jobs failed",
+                "see the logs above; rerun to finish the rest",
+            )
         return
     for report in prepare_request(req, settings, jobs, quiet):
         click.echo(report.summary())
@@ -860,8 +1022,20 @@ def metrics() -> None:
 @click.option("--limit", default=1000, show_default=True, help="At most this many (newest).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (one object per run).")
 @store_options
-def runs(kind, method, dataset, split, context, status, limit, as_json, profile, tracking_uri,
-         cache_dir, workspace) -> None:  # fmt: skip
+def runs(
+    kind,
+    method,
+    dataset,
+    split,
+    context,
+    status,
+    limit,
+    as_json,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
     """List the runs in the store: variant, dataset/split, context size, seed, status, the
     primary metric (mean over objects, at its card's scale), failures, duration and run id.
 
@@ -947,8 +1121,9 @@ def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None
         click.echo(
             f"Runs are on the tracking server {settings.tracking_uri}: open it in a browser."
         )
-        print_links(experiment_links(open_client(settings.tracking_uri),
-                                     settings.tracking_uri), click.echo)  # fmt: skip
+        print_links(
+            experiment_links(open_client(settings.tracking_uri), settings.tracking_uri), click.echo
+        )
         return
     serve(settings, host, port, workers, click.echo)
 
@@ -978,8 +1153,9 @@ def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None
     default=None,
     help="Local copy for a dataset that reads one (otherwise its data checks skip).",
 )
-def check(distribution, method_names, dataset_names, metric_names, method_opts, dataset_opts,
-          data_root) -> None:  # fmt: skip
+def check(
+    distribution, method_names, dataset_names, metric_names, method_opts, dataset_opts, data_root
+) -> None:
     """Check that a plugin's components follow the rules, on a tiny built-in dataset.
 
     Checks every method, dataset and metric of DISTRIBUTION (e.g. shapebench, or
@@ -1001,8 +1177,9 @@ def check(distribution, method_names, dataset_names, metric_names, method_opts, 
 
     start = time.perf_counter()
     registry = get_registry()
-    comps = checks.select_components(registry, distribution, method_names, dataset_names,
-                                     metric_names)  # fmt: skip
+    comps = checks.select_components(
+        registry, distribution, method_names, dataset_names, metric_names
+    )
     overrides = {"method": _parse(method_opts, "-O"), "dataset": _parse(dataset_opts, "-D")}
     debug = bool(os.environ.get("SHAPEBENCH_DEBUG"))
     colors = {checks.PASS: "green", checks.FAIL: "red", checks.SKIP: "yellow"}
@@ -1014,8 +1191,11 @@ def check(distribution, method_names, dataset_names, metric_names, method_opts, 
             for res in checks.run_checks(comp, env, overrides.get(comp.kind), data_root):
                 report.results.append(res)
                 took = f" ({res.seconds:.1f}s)" if res.seconds >= 1 else ""
-                click.echo("  " + click.style(f"{res.status.upper():<4}", fg=colors[res.status])
-                           + f"  {res.check:<13} {res.reason}{took}")  # fmt: skip
+                click.echo(
+                    "  "
+                    + click.style(f"{res.status.upper():<4}", fg=colors[res.status])
+                    + f"  {res.check:<13} {res.reason}{took}"
+                )
                 if debug and res.failed:
                     for text in (res.traceback, res.output):
                         if text.strip():
@@ -1026,8 +1206,11 @@ def check(distribution, method_names, dataset_names, metric_names, method_opts, 
     click.echo("")
     for line in failures:
         click.secho(f"FAILED {line}", fg="red")
-    click.secho(checks.summary(results, time.perf_counter() - start), bold=True,
-                fg="red" if failures else "green")  # fmt: skip
+    click.secho(
+        checks.summary(results, time.perf_counter() - start),
+        bold=True,
+        fg="red" if failures else "green",
+    )
     if failures:
         sys.exit(1)
 

@@ -65,7 +65,7 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
                     else f"{failed} failed"
                     if failed
                     else "a metric raised"
-                )  # fmt: skip
+                )
                 + "; most common reasons:",
                 fg="red" if everything else "yellow",
             )
@@ -152,8 +152,11 @@ def describe_kind(kind: str, profile: str | None = None) -> None:
             effect = _in_effect(kind, name, cls, profile_data)
             for opt in describe(cls.Options):
                 value = effect.get(opt.name, opt.default)
-                shown = (f"{value!r}, default {opt.default!r}" if value != opt.default
-                         else f"default {opt.default!r}")  # fmt: skip
+                shown = (
+                    f"{value!r}, default {opt.default!r}"
+                    if value != opt.default
+                    else f"default {opt.default!r}"
+                )
                 if profile_data is not None and value == opt.default:
                     shown = f"{value!r}"
                 click.echo(f"    {opt.name} ({opt.type}, {shown}): {opt.help}")
@@ -183,8 +186,14 @@ def echo_frames(echo: Callable[[str], None]) -> None:
     """The evaluation frames, what each means, and which one the paper's tables use."""
     echo("Frames (--frame on run, sweep, leaderboard and report; part of every card and cell key):")
     for name, (scale, text) in FRAMES.items():
-        marks = [m for m, on in (("default", name == DEFAULT_FRAME),
-                                 ("the paper's tables", name == PAPER_FRAME)) if on]  # fmt: skip
+        marks = [
+            m
+            for m, on in (
+                ("default", name == DEFAULT_FRAME),
+                ("the paper's tables", name == PAPER_FRAME),
+            )
+            if on
+        ]
         shown = f" [{', '.join(marks)}]" if marks else ""
         echo(f"  {name}{shown}: coordinates x {scale:g} before scoring; {text}")
     echo(f"  Compare with the paper's figures only in {PAPER_FRAME} (docs/metrics.md).")

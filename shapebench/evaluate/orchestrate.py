@@ -177,17 +177,27 @@ def seed_plans(
                 training = training_identity(seed_method, trainer)
                 checkpoint["training"] = training
                 reference = find_reference(seed_method, checkpoint["key"])
-                origin = weights_origin(settings, seed_method, checkpoint["key"], req.retrain,
-                                        reference)  # fmt: skip
+                origin = weights_origin(
+                    settings, seed_method, checkpoint["key"], req.retrain, reference
+                )
                 if origin:  # shipped weights are not those a local training would give
                     checkpoint["weights"] = origin
                 elif reference is not None:
                     origin = "local"  # a row beside the reference's: its label says so
         variant = _variant(seed_method, dataset, req, settings, trainer, training, origin)
         plan = RunPlan(
-            seed_method, dataset, resolved.splits, resolved.contexts, [seed], resolved.metrics,
-            req.force, req.quiet, checkpoint, req.protocol, variant,
-        )  # fmt: skip
+            seed_method,
+            dataset,
+            resolved.splits,
+            resolved.contexts,
+            [seed],
+            resolved.metrics,
+            req.force,
+            req.quiet,
+            checkpoint,
+            req.protocol,
+            variant,
+        )
         out.append(SeedPlan(seed, trainer, seed_method, plan, checkpoint, variant))
     return out
 
@@ -206,11 +216,13 @@ def evaluate(
     weights_seconds: list[float] = []
     for sp in seed_plans(req, resolved, settings, trainer_for_seed):
         variant = sp.variant
-        make = _method_factory(sp.method, resolved.dataset, req, settings, sp.trainer,
-                               sp.checkpoint, weights_seconds)  # fmt: skip
+        make = _method_factory(
+            sp.method, resolved.dataset, req, settings, sp.trainer, sp.checkpoint, weights_seconds
+        )
         cells += runner.run(sp.plan, make)
-    return EvalOutcome(resolved.method, resolved.dataset, resolved.primary, cells, variant,
-                       sum(weights_seconds))  # fmt: skip
+    return EvalOutcome(
+        resolved.method, resolved.dataset, resolved.primary, cells, variant, sum(weights_seconds)
+    )
 
 
 def _variant(

@@ -100,8 +100,16 @@ def _draw(ax, panel: Panel, view: tuple[float, float], bounds: tuple[np.ndarray,
         spine.set_visible(False)
     pts = np.asarray(panel.points, dtype=np.float64).reshape(-1, 3)
     if not len(pts):
-        ax.text(0.5, 0.5, panel.title or "no points", ha="center", va="center", fontsize=8,
-                color="#888888", transform=ax.transAxes)  # fmt: skip
+        ax.text(
+            0.5,
+            0.5,
+            panel.title or "no points",
+            ha="center",
+            va="center",
+            fontsize=8,
+            color="#888888",
+            transform=ax.transAxes,
+        )
         return None
     keep = subsample(pts, panel.max_points)
     pts = pts[keep]
@@ -109,10 +117,23 @@ def _draw(ax, panel: Panel, view: tuple[float, float], bounds: tuple[np.ndarray,
     order = np.argsort(depth)  # far first: near points are drawn over them
     if panel.values is not None:
         vals = np.asarray(panel.values, dtype=float)[keep][order]
-        return ax.scatter(xy[order, 0], xy[order, 1], c=vals, s=panel.size, cmap="magma",
-                          linewidths=0, rasterized=True)  # fmt: skip
-    ax.scatter(xy[order, 0], xy[order, 1], c=_shade(panel.colour, depth[order]), s=panel.size,
-               linewidths=0, rasterized=True)  # fmt: skip
+        return ax.scatter(
+            xy[order, 0],
+            xy[order, 1],
+            c=vals,
+            s=panel.size,
+            cmap="magma",
+            linewidths=0,
+            rasterized=True,
+        )
+    ax.scatter(
+        xy[order, 0],
+        xy[order, 1],
+        c=_shade(panel.colour, depth[order]),
+        s=panel.size,
+        linewidths=0,
+        rasterized=True,
+    )
     return None
 
 
@@ -146,8 +167,10 @@ def object_figure(
         panels.append(Panel(ground_truth, "ground truth", COLOURS["ground truth"]))
     if spread is not None and completion is not None:
         panels.append(Panel(completion, "posterior spread", values=spread))
-    fig = Figure(figsize=(2.2 * len(panels) + (0.5 if spread is not None else 0),
-                          2.2 * len(views) + 0.4), dpi=80)  # fmt: skip
+    fig = Figure(
+        figsize=(2.2 * len(panels) + (0.5 if spread is not None else 0), 2.2 * len(views) + 0.4),
+        dpi=80,
+    )
     axes = fig.subplots(len(views), len(panels), squeeze=False)
     for r, view in enumerate(views):
         bounds = _bounds([p.points for p in panels], view)
@@ -217,8 +240,14 @@ def qualitative_grid(
     height = fig.get_figheight()
     if title:  # in the top 0.5 inch the figure keeps free, above the column titles
         fig.suptitle(title, fontsize=10, y=1 - 0.08 / height)
-    fig.subplots_adjust(left=margin / fig.get_figwidth(), right=0.99, bottom=0.01,
-                        top=1 - 0.5 / height, wspace=0.04, hspace=0.06)  # fmt: skip
+    fig.subplots_adjust(
+        left=margin / fig.get_figwidth(),
+        right=0.99,
+        bottom=0.01,
+        top=1 - 0.5 / height,
+        wspace=0.04,
+        hspace=0.06,
+    )
     return fig
 
 
@@ -240,8 +269,10 @@ def picture_arrays(
 ) -> dict[str, np.ndarray]:
     """What a picture is drawn from, subsampled (``MAX_POINTS``), for ``pictures/<obj>.npz``."""
     keep = subsample(completion)
-    arrays = {"context": np.asarray(context, np.float32),
-              "completion": np.asarray(completion, np.float32)[keep]}  # fmt: skip
+    arrays = {
+        "context": np.asarray(context, np.float32),
+        "completion": np.asarray(completion, np.float32)[keep],
+    }
     if ground_truth is not None:
         arrays["ground_truth"] = np.asarray(ground_truth, np.float32)[subsample(ground_truth)]
     if spread is not None:
@@ -251,8 +282,13 @@ def picture_arrays(
 
 def picture_png(arrays: Mapping[str, np.ndarray], title: str = "") -> bytes:
     """The PNG of one object's picture from its :func:`picture_arrays`."""
-    fig = object_figure(arrays["context"], arrays.get("completion"), arrays.get("ground_truth"),
-                        arrays.get("spread"), title)  # fmt: skip
+    fig = object_figure(
+        arrays["context"],
+        arrays.get("completion"),
+        arrays.get("ground_truth"),
+        arrays.get("spread"),
+        title,
+    )
     return png_bytes(fig)
 
 

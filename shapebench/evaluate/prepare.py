@@ -295,8 +295,13 @@ class PrepareRequest:
     data_root: str | None
 
 
-def prepare_request(req: PrepareRequest, settings, jobs: int = 1, quiet: bool = False,
-                    shard: tuple[int, int] | None = None) -> list[PrepareReport]:  # fmt: skip
+def prepare_request(
+    req: PrepareRequest,
+    settings,
+    jobs: int = 1,
+    quiet: bool = False,
+    shard: tuple[int, int] | None = None,
+) -> list[PrepareReport]:
     """The evaluation splits, then the train split with what ``req.methods`` need."""
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
@@ -304,8 +309,7 @@ def prepare_request(req: PrepareRequest, settings, jobs: int = 1, quiet: bool = 
     reg = get_registry()
     ds = resolve_dataset(reg, req.dataset, settings, req.data_root, req.dataset_opts)
     splits = req.splits or list(ds.eval_splits)
-    reports = [prepare(ds, splits, jobs=jobs, quiet=quiet, categories=req.categories,
-                       shard=shard)]  # fmt: skip
+    reports = [prepare(ds, splits, jobs=jobs, quiet=quiet, categories=req.categories, shard=shard)]
     need: frozenset[Supervision] = frozenset()
     for name in req.methods:  # what this configuration needs (OccNet's depends on its recipe)
         instance = resolve_method(reg, name, settings, req.method_opts).instantiate()

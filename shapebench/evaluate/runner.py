@@ -37,8 +37,18 @@ from shapebench.store.records import EVAL_POINTS_ACTUAL_TAG, METRIC_ERRORS_TAG, 
 from shapebench.store.tracking import PARENT_KIND, Tracker, experiment_name, flatten
 
 #: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
-RUN_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-              "#7f7f7f", "#bcbd22", "#17becf")  # fmt: skip
+RUN_COLORS = (
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+)
 EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluate.pictures.PICTURES_PER_CELL)
 TOP_REASONS = 3  # distinct failure reasons printed per cell
 #: Per-object column prefix holding the error of a metric that raised on that object.
@@ -160,8 +170,9 @@ def distinct_errors(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[s
     for col in [c for c in table.columns if str(c).startswith(METRIC_ERROR)]:
         name = str(col)[len(METRIC_ERROR) :]
         for i in table.index[table[col].notna() & (table[col] != "")]:
-            errors.append((f"metric {name}: {_first_line(table.at[i, col])}",
-                           tracebacks.get(i, "")))  # fmt: skip
+            errors.append(
+                (f"metric {name}: {_first_line(table.at[i, col])}", tracebacks.get(i, ""))
+            )
     counts: dict[str, list] = {}
     for reason, tb in errors:
         entry = counts.setdefault(reason, [0, tb if isinstance(tb, str) else ""])
@@ -177,9 +188,11 @@ def _first_line(error: object) -> str:
 
 def metric_errors(table: pd.DataFrame) -> list[str]:
     """The metrics that raised on some object of this per-object table."""
-    return sorted(str(c)[len(METRIC_ERROR) :] for c in table.columns
-                  if str(c).startswith(METRIC_ERROR) and table[c].notna().any()
-                  and (table[c] != "").any())  # fmt: skip
+    return sorted(
+        str(c)[len(METRIC_ERROR) :]
+        for c in table.columns
+        if str(c).startswith(METRIC_ERROR) and table[c].notna().any() and (table[c] != "").any()
+    )
 
 
 class ObjectCache:
@@ -272,8 +285,12 @@ def scaled(data: ObjectData, ctx: Context, completion: Completion, factor: float
 
     if factor == 1.0:
         return data, ctx, completion
-    sdata = replace(data, gt_points=data.gt_points * factor,
-                    surface_points=data.surface_points * factor, cache={})  # fmt: skip
+    sdata = replace(
+        data,
+        gt_points=data.gt_points * factor,
+        surface_points=data.surface_points * factor,
+        cache={},
+    )
     sctx = replace(ctx, points=ctx.points * factor)
     scomp = Completion(
         points=(completion.points * factor).astype(np.float32),
@@ -294,8 +311,11 @@ def score(
     ``frame_scale``), or the reason it failed."""
     row: dict[str, Any] = {"status": "ok", "error": ""}
     if isinstance(outcome, Exception):  # the method's failure must not lose the other objects
-        row.update(status="failed", error=f"{type(outcome).__name__}: {outcome}",
-                   traceback=_traceback(outcome))  # fmt: skip
+        row.update(
+            status="failed",
+            error=f"{type(outcome).__name__}: {outcome}",
+            traceback=_traceback(outcome),
+        )
         return row, None
     problem = _valid_points(outcome)
     if problem:
@@ -341,8 +361,9 @@ def complete_chunk(method: Method, contexts: list[Context], n_points: int):
     try:
         outputs = method.complete_batch(contexts, n_points)
         if len(outputs) != len(contexts):
-            raise RuntimeError(f"complete_batch returned {len(outputs)} results for "
-                               f"{len(contexts)} contexts")  # fmt: skip
+            raise RuntimeError(
+                f"complete_batch returned {len(outputs)} results for {len(contexts)} contexts"
+            )
     except Exception as exc:  # a crash of the whole batch fails these objects only
         outputs = [exc] * len(contexts)
     return outputs, (time.perf_counter() - start) / max(len(contexts), 1)
@@ -394,8 +415,18 @@ class Runner:
                     pending.append((seed, size, cfg, key))
                     continue
                 self._relabel(done.run_id, plan)
-                results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
-                                          exp_id, cards=cfg["metrics"]))  # fmt: skip
+                results.append(
+                    CellResult(
+                        split,
+                        size,
+                        seed,
+                        done.run_id,
+                        True,
+                        done.metrics,
+                        exp_id,
+                        cards=cfg["metrics"],
+                    )
+                )
             if not pending:
                 continue
             cached = [r for r in results if r.split == split and r.skipped]
@@ -404,8 +435,9 @@ class Runner:
             )
             if method is None:
                 method = make_method()
-            results += self._run_pending(plan, method, split, refs, cache, store, exp_id, pending,
-                                         cached)  # fmt: skip
+            results += self._run_pending(
+                plan, method, split, refs, cache, store, exp_id, pending, cached
+            )
         return results
 
     def finished(self, plan: RunPlan, exp_id: str, key: str):
@@ -441,11 +473,35 @@ class Runner:
             # Finished by another process since we looked (unless recomputing on purpose).
             done = self.finished(plan, exp_id, key)
             if done is not None:
-                results.append(CellResult(split, size, seed, done.run_id, True, done.metrics,
-                                          exp_id, cards=cfg["metrics"]))  # fmt: skip
+                results.append(
+                    CellResult(
+                        split,
+                        size,
+                        seed,
+                        done.run_id,
+                        True,
+                        done.metrics,
+                        exp_id,
+                        cards=cfg["metrics"],
+                    )
+                )
                 return
-            results.append(self._run_cell(plan, method, split, refs, cache, store, exp_id,
-                                          start_parent(), seed, size, cfg, key))  # fmt: skip
+            results.append(
+                self._run_cell(
+                    plan,
+                    method,
+                    split,
+                    refs,
+                    cache,
+                    store,
+                    exp_id,
+                    start_parent(),
+                    seed,
+                    size,
+                    cfg,
+                    key,
+                )
+            )
             self._describe_cell(plan, split, refs, results[-1])
 
         settings = self.tracker.settings
@@ -525,7 +581,8 @@ class Runner:
         the next of a palette. MLflow's own choice hashes the run id, and two variants of one
         chart often got the same color."""
         parents = self.tracker.client.search_runs(
-            [exp_id], f"tags.`shapebench.kind` = '{PARENT_KIND}'", max_results=1000)  # fmt: skip
+            [exp_id], f"tags.`shapebench.kind` = '{PARENT_KIND}'", max_results=1000
+        )
         labels: list[str] = []
         for run in sorted(parents, key=lambda r: r.info.start_time):
             tags = run.data.tags
@@ -550,11 +607,13 @@ class Runner:
         ds = plan.dataset
         refs = ds.objects(split)
         self.tracker.log_dataset(
-            run_id, f"{ds.name}/{split}", ds.fingerprint(),
+            run_id,
+            f"{ds.name}/{split}",
+            ds.fingerprint(),
             {"dataset": ds.name, "version": ds.version, "data_root": str(ds.data_root or "")},
             {"objects": len(refs), "categories": len({r.category for r in refs})},
             split,
-        )  # fmt: skip
+        )
 
     def _training_link(self, plan: RunPlan) -> str:
         """A markdown link to the training run of this plan's checkpoint ("" when none)."""
@@ -590,8 +649,9 @@ class Runner:
         self.tracker.client.set_tag(result.run_id, "mlflow.note.content", _note(lines))
         self._log_dataset(plan, split, result.run_id)
 
-    def _finish_parent(self, plan: RunPlan, parent: str, split: str,
-                       cells: list[CellResult]) -> None:  # fmt: skip
+    def _finish_parent(
+        self, plan: RunPlan, parent: str, split: str, cells: list[CellResult]
+    ) -> None:
         """The parent's metrics: each cell's, averaged over seeds, logged with step = context
         size (one line per variant in the UI's chart view); its note, the summary table."""
         by_size: dict[int, list[CellResult]] = {}
@@ -599,8 +659,10 @@ class Runner:
             by_size.setdefault(cell.context_size, []).append(cell)
         for size in sorted(by_size):
             keys = set().union(*(c.metrics for c in by_size[size]))
-            mean = {k: float(np.mean([c.metrics[k] for c in by_size[size] if k in c.metrics]))
-                    for k in keys}  # fmt: skip
+            mean = {
+                k: float(np.mean([c.metrics[k] for c in by_size[size] if k in c.metrics]))
+                for k in keys
+            }
             self.tracker.log_metrics(parent, mean, step=size)
         metric = self._primary(plan)
         scale = cells[0].scale(metric) if cells else 1.0
@@ -612,10 +674,12 @@ class Runner:
             "|---|---|---|---|---|---|",
         ]
         for c in sorted(cells, key=lambda c: (c.context_size, c.seed)):
-            lines.append(f"| {c.context_size} | {c.seed} | {c.n_objects} | "
-                         f"{c.n_objects - c.n_ok} | {_pm_text(c.metrics, metric, scale)} | "
-                         f"[{c.run_id[:8]}](#/experiments/{c.experiment_id}/runs/{c.run_id})"
-                         f"{' (cached)' if c.skipped else ''} |")  # fmt: skip
+            lines.append(
+                f"| {c.context_size} | {c.seed} | {c.n_objects} | "
+                f"{c.n_objects - c.n_ok} | {_pm_text(c.metrics, metric, scale)} | "
+                f"[{c.run_id[:8]}](#/experiments/{c.experiment_id}/runs/{c.run_id})"
+                f"{' (cached)' if c.skipped else ''} |"
+            )
         link = self._training_link(plan)
         if link:
             lines += ["", f"Checkpoint: {link}."]
@@ -632,8 +696,9 @@ class Runner:
         tr = self.tracker
         tr.abandon_stale(exp_id, key)
         record = self._record(plan, split, size, seed, key, cfg)
-        run_id = tr.start_run(exp_id, self._run_name(plan, f"k={size} seed={seed}"),
-                              record.to_tags(), parent)  # fmt: skip
+        run_id = tr.start_run(
+            exp_id, self._run_name(plan, f"k={size} seed={seed}"), record.to_tags(), parent
+        )
         try:
             rows, contexts, examples = [], [], []
             # The pictured objects depend on the split's object list only, never on which
@@ -687,18 +752,34 @@ class Runner:
             tr.log_params(run_id, flatten("", cfg))
             tr.log_metrics(run_id, summary, step=size)
             tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
-            self._log_artifacts(run_id, table, contexts, examples, truths,
-                                f"{self._label(plan)} k={size}",
-                                spare[: max(EXAMPLE_PLYS - len(examples), 0)])  # fmt: skip
+            self._log_artifacts(
+                run_id,
+                table,
+                contexts,
+                examples,
+                truths,
+                f"{self._label(plan)} k={size}",
+                spare[: max(EXAMPLE_PLYS - len(examples), 0)],
+            )
         except BaseException:
             tr.end(run_id, "KILLED")
             raise
         tr.end(run_id)
         uri = tr.client.get_run(run_id).info.artifact_uri.rstrip("/") + "/per_object.csv"
         errors = distinct_errors(table)
-        return CellResult(split, size, seed, run_id, False, summary, exp_id,
-                          [(r, n) for r, n, _ in errors], uri,
-                          {r: tb for r, _, tb in errors if tb}, cfg["metrics"])  # fmt: skip
+        return CellResult(
+            split,
+            size,
+            seed,
+            run_id,
+            False,
+            summary,
+            exp_id,
+            [(r, n) for r, n, _ in errors],
+            uri,
+            {r: tb for r, _, tb in errors if tb},
+            cfg["metrics"],
+        )
 
     def _check_gt_points(self, plan: RunPlan, run_id: str, table: pd.DataFrame) -> None:
         """The card promises ``gt_points`` evaluation points per object; a dataset that has
@@ -713,9 +794,11 @@ class Runner:
             return
         short = int((table["gt_points"] < promised).sum())
         self.tracker.client.set_tag(run_id, EVAL_POINTS_ACTUAL_TAG, str(fewest))
-        self.echo(f"  warning: {short} object(s) of {plan.dataset.name} have fewer ground-truth "
-                  f"points than the {promised} the metric card states (fewest: {fewest}); "
-                  "the real counts are in per_object.csv")  # fmt: skip
+        self.echo(
+            f"  warning: {short} object(s) of {plan.dataset.name} have fewer ground-truth "
+            f"points than the {promised} the metric card states (fewest: {fewest}); "
+            "the real counts are in per_object.csv"
+        )
 
     @staticmethod
     def _label(plan: RunPlan) -> str:
@@ -740,29 +823,42 @@ class Runner:
         notes = ds.selection_notes(split)
         self.echo(line + (f" ({'; '.join(notes)})" if notes else ""))
 
-    def _record(self, plan: RunPlan, split: str, size: int, seed: int, key: str,
-                cfg: dict) -> CellRecord:  # fmt: skip
+    def _record(
+        self, plan: RunPlan, split: str, size: int, seed: int, key: str, cfg: dict
+    ) -> CellRecord:
         ds = plan.dataset
         plugin = plan.method.registration.plugin
         variant = plan.variant
         return CellRecord(
-            cell_key=key, method=plan.method.name, dataset=ds.name, split=split,
-            context_size=size, seed=seed, cards=dict(cfg["metrics"]),
-            display_name=plan.method.display_name, trains=bool(plan.method.cls.trains),
-            method_code=cfg["method"]["code"], dataset_version=ds.version,
-            fingerprint=ds.fingerprint(), data_root=str(ds.data_root) if ds.data_root else "",
-            shapebench_version=__version__, plugin_distribution=plugin.distribution,
-            plugin_version=plugin.version, git_commit=git_commit(),
+            cell_key=key,
+            method=plan.method.name,
+            dataset=ds.name,
+            split=split,
+            context_size=size,
+            seed=seed,
+            cards=dict(cfg["metrics"]),
+            display_name=plan.method.display_name,
+            trains=bool(plan.method.cls.trains),
+            method_code=cfg["method"]["code"],
+            dataset_version=ds.version,
+            fingerprint=ds.fingerprint(),
+            data_root=str(ds.data_root) if ds.data_root else "",
+            shapebench_version=__version__,
+            plugin_distribution=plugin.distribution,
+            plugin_version=plugin.version,
+            git_commit=git_commit(),
             checkpoint_key=str(plan.checkpoint.get("key") or ""),
             training_run_id=str(plan.checkpoint.get("run_id") or ""),
-            frame=plan.protocol.frame, context_normals=plan.protocol.context_normals,
+            frame=plan.protocol.frame,
+            context_normals=plan.protocol.context_normals,
             variant_key=variant.key if variant else "",
             variant_label=variant.label if variant else "",
             variant_overrides=dict(variant.overrides) if variant else {},
-        )  # fmt: skip
+        )
 
-    def _log_artifacts(self, run_id, table, contexts, examples, truths=None, title="",
-                       spare=()) -> None:  # fmt: skip
+    def _log_artifacts(
+        self, run_id, table, contexts, examples, truths=None, title="", spare=()
+    ) -> None:
         """The per-object table, the contexts, and for the pictured objects their completed
         clouds (``completions/*.ply``) and pictures (``pictures/<object>.png``, drawn from the
         arrays kept beside it as ``.npz``: context, completion, ground truth, spread); when
@@ -790,18 +886,24 @@ class Runner:
                 try:
                     for ctx, completion in examples:
                         obj = ctx.ref.id
-                        arrays = picture_arrays(ctx.points, completion.points,
-                                                (truths or {}).get(obj),
-                                                completion.cache.get("spread"))  # fmt: skip
+                        arrays = picture_arrays(
+                            ctx.points,
+                            completion.points,
+                            (truths or {}).get(obj),
+                            completion.cache.get("spread"),
+                        )
                         np.savez_compressed(pic_dir / f"{file_stem(obj)}.npz", **arrays)
                         png = picture_png(arrays, f"{title}: {obj}" if title else obj)
                         (pic_dir / f"{file_stem(obj)}.png").write_bytes(png)
                 except Exception as exc:  # a picture is a view of the results, not one of them
-                    self.echo(f"  warning: could not draw the pictures of this cell "
-                              f"({type(exc).__name__}: {exc})")  # fmt: skip
+                    self.echo(
+                        f"  warning: could not draw the pictures of this cell "
+                        f"({type(exc).__name__}: {exc})"
+                    )
                 self.tracker.client.log_artifacts(run_id, str(pic_dir), "pictures")
-                self.tracker.client.log_metric(run_id, "pictures_seconds",
-                                               time.perf_counter() - start)  # fmt: skip
+                self.tracker.client.log_metric(
+                    run_id, "pictures_seconds", time.perf_counter() - start
+                )
             if examples or spare:
                 ex_dir = tmpdir / "completions"
                 ex_dir.mkdir()
@@ -812,7 +914,9 @@ class Runner:
                     for j, sample in enumerate(completion.samples or []):
                         trimesh.PointCloud(sample).export(ex_dir / f"{stem}.sample{j}.ply")
                     if "spread" in completion.cache:
-                        np.savez_compressed(ex_dir / f"{stem}.spread.npz",
-                                            points=completion.points,
-                                            spread=completion.cache["spread"])  # fmt: skip
+                        np.savez_compressed(
+                            ex_dir / f"{stem}.spread.npz",
+                            points=completion.points,
+                            spread=completion.cache["spread"],
+                        )
                 self.tracker.client.log_artifacts(run_id, str(ex_dir), "completions")

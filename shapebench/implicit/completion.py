@@ -12,21 +12,7 @@ from torch import nn
 
 from shapebench.api.types import Completion, Context
 from shapebench.geometry.meshing import extract_mesh, sample_mesh_points
-
-
-def stack_contexts(
-    contexts: list[Context], device: torch.device
-) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """(B, k, 3) points, and normals or None; contexts of one cell all have the same size k.
-
-    The benchmark's protocol gives methods points only, so normals are None unless every context
-    carries them (``--context-normals``, see :mod:`shapebench.api.protocol`).
-    """
-    pts = torch.from_numpy(np.stack([c.points for c in contexts])).to(device)
-    normals = [getattr(c, "normals", None) for c in contexts]
-    if any(n is None for n in normals):
-        return pts, None
-    return pts, torch.from_numpy(np.stack(normals)).to(device)
+from shapebench.train.lightning_method import stack_contexts  # noqa: F401 (plugins import it here)
 
 
 def require_normals(normals: torch.Tensor | None, setting: str, owner: str) -> torch.Tensor:
@@ -79,15 +65,17 @@ def optimise_latents(
     return z.detach(), history
 
 
-def initial_latents(contexts: list[Context], dim: int, std: float,
-                    device: torch.device) -> torch.Tensor:  # fmt: skip
+def initial_latents(
+    contexts: list[Context], dim: int, std: float, device: torch.device
+) -> torch.Tensor:
     """z_0 ~ N(0, std^2), seeded per object from its context seed (repeatable runs)."""
     rows = [np.random.default_rng(c.seed).normal(0.0, std, dim) for c in contexts]
     return torch.tensor(np.stack(rows), dtype=torch.float32, device=device)
 
 
-def field_of(decoder: nn.Module, z: torch.Tensor, device: torch.device,
-             bf16: bool = False) -> Callable[[np.ndarray], np.ndarray]:  # fmt: skip
+def field_of(
+    decoder: nn.Module, z: torch.Tensor, device: torch.device, bf16: bool = False
+) -> Callable[[np.ndarray], np.ndarray]:
     """The SDF of one latent code as a numpy function, for the mesh extractor."""
 
     @torch.no_grad()
@@ -102,8 +90,7 @@ def field_of(decoder: nn.Module, z: torch.Tensor, device: torch.device,
 
 def component_labels(mesh: trimesh.Trimesh) -> np.ndarray:
     """One label per face; faces sharing an edge have the same label."""
-    return trimesh.graph.connected_component_labels(mesh.face_adjacency,
-                                                    node_count=len(mesh.faces))  # fmt: skip
+    return trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
 
 
 def largest_component(mesh: trimesh.Trimesh, labels: np.ndarray | None = None) -> trimesh.Trimesh:
@@ -120,9 +107,15 @@ def largest_component(mesh: trimesh.Trimesh, labels: np.ndarray | None = None) -
     return out
 
 
-def mesh_completion(field: Callable[[np.ndarray], np.ndarray], ctx: Context, n_points: int,
-                    resolution: int, level: float = 0.0, inside_is_negative: bool = True,
-                    keep_largest: bool = False) -> Completion:  # fmt: skip
+def mesh_completion(
+    field: Callable[[np.ndarray], np.ndarray],
+    ctx: Context,
+    n_points: int,
+    resolution: int,
+    level: float = 0.0,
+    inside_is_negative: bool = True,
+    keep_largest: bool = False,
+) -> Completion:
     """Marching cubes on ``field`` (an SDF, or logits with ``inside_is_negative=False``), then
     ``n_points`` sampled area-weighted on the mesh.
 
@@ -131,17 +124,25 @@ def mesh_completion(field: Callable[[np.ndarray], np.ndarray], ctx: Context, n_p
     component far from the object costs a lot under squared Chamfer.
     """
     start = time.perf_counter()
-    mesh, stats = extract_mesh(field, resolution=resolution, level=level,
-                               inside_is_negative=inside_is_negative,
-                               coarse=min(32, resolution))  # fmt: skip
+    mesh, stats = extract_mesh(
+        field,
+        resolution=resolution,
+        level=level,
+        inside_is_negative=inside_is_negative,
+        coarse=min(32, resolution),
+    )
     labels = component_labels(mesh) if len(mesh.faces) else np.zeros(0, dtype=int)
     components = int(labels.max()) + 1 if len(labels) else 0
     if keep_largest:
         mesh = largest_component(mesh, labels)
     points = sample_mesh_points(mesh, n_points, seed=ctx.seed)
-    return Completion(points=points, mesh=mesh, info={
-        "mesh_seconds": time.perf_counter() - start,
-        "mesh_evaluations": float(stats.evaluations),
-        "mesh_faces": float(len(mesh.faces)),
-        "mesh_components": float(components),
-    })  # fmt: skip
+    return Completion(
+        points=points,
+        mesh=mesh,
+        info={
+            "mesh_seconds": time.perf_counter() - start,
+            "mesh_evaluations": float(stats.evaluations),
+            "mesh_faces": float(len(mesh.faces)),
+            "mesh_components": float(components),
+        },
+    )

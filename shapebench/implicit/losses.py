@@ -26,9 +26,15 @@ def normal_term(grad: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
     return (grad - normals).norm(dim=-1).mean(dim=-1)
 
 
-def offsurface_samples(surface: torch.Tensor, mode: str, local_sigma: float = 0.01,
-                       global_bound: float = 1.8, paper_count: int = 5000,
-                       paper_variance: float = 0.04, count: int = 0) -> torch.Tensor:  # fmt: skip
+def offsurface_samples(
+    surface: torch.Tensor,
+    mode: str,
+    local_sigma: float = 0.01,
+    global_bound: float = 1.8,
+    paper_count: int = 5000,
+    paper_variance: float = 0.04,
+    count: int = 0,
+) -> torch.Tensor:
     """Points near and around the surface where the Eikonal term is evaluated.
 
     ``mode="paper"`` (Appendix A.1): ``paper_count`` of the surface points (at most all of them),
@@ -66,7 +72,8 @@ def clamped_l1(pred: torch.Tensor, target: torch.Tensor, delta: float = 0.1) -> 
     return (pred.clamp(-delta, delta) - target.clamp(-delta, delta)).abs().mean(dim=-1)
 
 
-def gaussian_kl(mq: torch.Tensor, vq: torch.Tensor, mp: torch.Tensor,
-                vp: torch.Tensor) -> torch.Tensor:  # fmt: skip
+def gaussian_kl(
+    mq: torch.Tensor, vq: torch.Tensor, mp: torch.Tensor, vp: torch.Tensor
+) -> torch.Tensor:
     """KL(N(mq, vq) || N(mp, vp)) for diagonal Gaussians, summed over dimensions: (B,)."""
     return 0.5 * (torch.log(vp / vq) + (vq + (mq - mp) ** 2) / vp - 1.0).sum(dim=-1)

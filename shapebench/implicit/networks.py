@@ -163,8 +163,14 @@ class MSCEncoder(nn.Module):
     #: Per-point inputs: x, y, z and y_n, the observed signed distance (1) or the normal (3).
     INPUTS = {"sdf": 4, "normals": 6}
 
-    def __init__(self, latent_dim: int, hidden: int = 512, layers: int = 3,
-                 mean_weights: str = "printed", inputs: str = "sdf") -> None:  # fmt: skip
+    def __init__(
+        self,
+        latent_dim: int,
+        hidden: int = 512,
+        layers: int = 3,
+        mean_weights: str = "printed",
+        inputs: str = "sdf",
+    ) -> None:
         super().__init__()
         if inputs not in self.INPUTS:
             raise ValueError(f"inputs must be one of {list(self.INPUTS)}, got {inputs!r}")
@@ -184,8 +190,9 @@ class MSCEncoder(nn.Module):
     def prior_precision(self) -> torch.Tensor:
         return F.softplus(self.prior_precision_raw) + 1e-4
 
-    def forward(self, points: torch.Tensor, y: torch.Tensor | None = None,
-                mask: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    def forward(
+        self, points: torch.Tensor, y: torch.Tensor | None = None, mask: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``points`` (B, N, 3); ``y`` their observed signed distances (B, N), zeros when omitted
         (surface points), or their normals (B, N, 3) with ``inputs="normals"``; optional ``mask``
         (B, N) of real points.

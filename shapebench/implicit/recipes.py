@@ -89,8 +89,9 @@ def apply_recipe(options: Any, recipes: dict[str, dict[str, Any]], owner: str) -
     opt_recipe = getattr(options, "opt_recipe", None)
     if opt_recipe is not None:
         if opt_recipe not in recipes:
-            raise ConfigError(f"{owner}: unknown opt_recipe {opt_recipe!r}; use one of "
-                              f"{sorted(recipes)}")  # fmt: skip
+            raise ConfigError(
+                f"{owner}: unknown opt_recipe {opt_recipe!r}; use one of {sorted(recipes)}"
+            )
         keys = {k for values in TEST_TIME.values() for k in values} | {"opt_lr"}
         table.update({k: v for k, v in recipes[opt_recipe].items() if k in keys})
     values = {k: v for k, v in table.items() if getattr(options, k) is None}

@@ -74,53 +74,6 @@ TINY_DATASET_OPTIONS: dict[str, Any] = {
 #: ``check_options``: one epoch of small batches, coarse meshes.
 TINY_METHOD_OPTIONS: dict[str, Any] = {"epochs": 1, "batch_shapes": 4, "mesh_resolution": 32}
 
-_SMALL_IMPLICIT = {
-    "latent_dim": 8,
-    "width": 32,
-    "depth": 2,
-    "epochs": 1,
-    "batch_shapes": 4,
-    "mesh_resolution": 32,
-    "opt_steps": 5,
-}
-_SMALL_MSC = {
-    **_SMALL_IMPLICIT,
-    "surface_points": 64,
-    "encoder_width": 16,
-    "encoder_layers": 1,
-    "max_target": 64,
-}
-#: Tiny options of the built-in methods, by class. They belong in each class's ``check_options``
-#: (what a third-party method declares); they are here until the built-ins declare them. DeepSDF
-#: trains longer and OccNet meshes at probability 0.5: after fewer steps, or at OccNet's 0.2, their
-#: tiny networks have no surface to mesh.
-BUILTIN_CHECK_OPTIONS: dict[str, dict[str, Any]] = {
-    "shapebench_igr.method:IGR": {**_SMALL_IMPLICIT, "surface_points": 64},
-    "shapebench_msc.method:MSC": _SMALL_MSC,
-    "shapebench_msc.method:MSCNoOpt": _SMALL_MSC,
-    "shapebench_deepsdf.method:DeepSDF": {**_SMALL_IMPLICIT, "epochs": 5, "sdf_points": 256},
-    "shapebench_occnet.method:OccNet": {
-        "c_dim": 16,
-        "hidden_dim": 16,
-        "decoder_hidden": 16,
-        "query_points": 256,
-        "epochs": 3,
-        "lr": 0.003,
-        "threshold": 0.5,
-        "batch_shapes": 4,
-        "mesh_resolution": 32,
-    },
-    "shapebench_pcn.method:PCN": {
-        "feature": 32,
-        "num_coarse": 16,
-        "grid_size": 2,
-        "target_points": 256,
-        "epochs": 1,
-        "batch_shapes": 4,
-    },
-}
-
-
 # -- results ---------------------------------------------------------------------------------
 
 
@@ -280,6 +233,7 @@ class CheckEnv:
         """The ``synthetic`` dataset with :data:`TINY_DATASET_OPTIONS`, cached in the workdir."""
         if self._dataset is None:
             from shapebench.api import options as opts
+
             try:
                 cls = self.registry.load("dataset", "synthetic")
             except ShapebenchError as exc:
@@ -315,13 +269,11 @@ def tiny_values(options_cls: type, table: dict[str, Any]) -> dict[str, Any]:
 
 
 def method_check_options(cls: type) -> dict[str, Any]:
-    """The tiny options a method is checked with: its ``check_options``, else the built-ins'
-    table, else :data:`TINY_METHOD_OPTIONS` where it has those fields."""
+    """The tiny options a method is checked with: its ``check_options``, else
+    :data:`TINY_METHOD_OPTIONS` where it has those fields."""
     declared = getattr(cls, "check_options", None)
     if declared:
         return dict(declared)
-    if _class_path(cls) in BUILTIN_CHECK_OPTIONS:
-        return dict(BUILTIN_CHECK_OPTIONS[_class_path(cls)])
     options_cls = getattr(cls, "Options", None)
     if options_cls is None or not dataclasses.is_dataclass(options_cls):
         return {}
@@ -479,6 +431,7 @@ def _options_roundtrip(options_cls: type, values: dict[str, Any], owner: str) ->
     """Build options from ``values``, write them as ``-O KEY=VALUE`` strings (JSON values, as a
     training child process receives them), parse those back, and demand the same options."""
     from shapebench.api import options as opts
+
     built = opts.build(options_cls, values, owner)
     again = opts.build(options_cls, opts.parse_assignments(_as_assignments(built), "-O"), owner)
     if again != built:
@@ -496,6 +449,7 @@ def _options_roundtrip(options_cls: type, values: dict[str, Any], owner: str) ->
 
 def _as_assignments(options: Any) -> list[str]:
     from shapebench.api import options as opts
+
     out = []
     for key, value in opts.as_dict(options).items():
         try:
@@ -510,6 +464,7 @@ def _as_assignments(options: Any) -> list[str]:
 
 def _check_options_class(cls: type, owner: str) -> None:
     from shapebench.api import options as opts
+
     options_cls = getattr(cls, "Options", None)
     if not (isinstance(options_cls, type) and dataclasses.is_dataclass(options_cls)):
         raise CheckFailed(f"{owner}: Options must be a dataclass, got {options_cls!r}")
@@ -608,6 +563,7 @@ def _method_interface(comp: Component) -> tuple[str, type]:
 
 def _method_options(cls: type, owner: str, overrides: dict[str, Any]) -> tuple[str, Any]:
     from shapebench.api import options as opts
+
     _options_roundtrip(cls.Options, {}, owner)
     tiny = {**method_check_options(cls), **overrides}
     options = _options_roundtrip(cls.Options, tiny, owner)

@@ -7,8 +7,9 @@ hashes the source files of
 
 * the package of every class in the method's MRO (a plugin's package, ``shapebench.implicit``
   for the built-in implicit methods), except the :class:`~shapebench.api.method.Method` interface;
-  a class defined directly in the top-level ``shapebench`` package contributes its own module
-  file only, so unrelated core edits do not invalidate every result;
+  a class defined in shapebench's core (the top-level package or one of its rooms, such as
+  :class:`~shapebench.train.lightning_method.LightningMethod`) contributes its own module file
+  only, so unrelated core edits do not invalidate every result;
 * the modules the class names in ``code_modules`` (shared training code it imports).
 """
 
@@ -23,6 +24,11 @@ from pathlib import Path
 
 #: The interface module: editing docs there must not retrain every method.
 _EXCLUDED = {"shapebench.api.method", "abc", "builtins"}
+#: shapebench's core: a module there stands for its own file, not for its whole package.
+_CORE = {"shapebench"} | {
+    f"shapebench.{room}"
+    for room in ("api", "registry", "store", "train", "evaluate", "boards", "sweeps", "cli")
+}
 
 
 def _module_sources(module_name: str) -> list[tuple[str, Path]]:
@@ -34,7 +40,7 @@ def _module_sources(module_name: str) -> list[tuple[str, Path]]:
         return []
     path = Path(file)
     package = module_name.rpartition(".")[0] if path.name != "__init__.py" else module_name
-    if not package or package == "shapebench":  # a top-level module, or a core module
+    if not package or package in _CORE:  # a top-level module, or a core module
         return [(f"{module_name}.py", path)]
     root = Path(importlib.import_module(package).__file__).parent
     files = sorted(p for p in root.rglob("*.py") if "__pycache__" not in p.parts)

@@ -176,10 +176,23 @@ def list_runs(
         max_results=limit,
     )
     primary: dict[tuple, str] = {}
-    rows = [_row(r, experiments, primary) for r in runs
-            if kind != "all" or r.data.tags.get("shapebench.kind") in KINDS]  # fmt: skip
-    return sorted(rows, key=lambda r: (r.dataset, r.split, r.kind, r.variant,
-                                       r.context_size or 0, r.seed or 0, r.start))  # fmt: skip
+    rows = [
+        _row(r, experiments, primary)
+        for r in runs
+        if kind != "all" or r.data.tags.get("shapebench.kind") in KINDS
+    ]
+    return sorted(
+        rows,
+        key=lambda r: (
+            r.dataset,
+            r.split,
+            r.kind,
+            r.variant,
+            r.context_size or 0,
+            r.seed or 0,
+            r.start,
+        ),
+    )
 
 
 def _quote(value: str) -> str:
@@ -190,25 +203,46 @@ def _quote(value: str) -> str:
 
 def format_rows(rows: list[RunRow]) -> list[str]:
     """The lines ``shapebench runs`` prints: a fixed-width table."""
-    header = ["variant", "dataset/split", "k", "seed", "status", "metric", "mean", "failed",
-              "time", "run id"]  # fmt: skip
+    header = [
+        "variant",
+        "dataset/split",
+        "k",
+        "seed",
+        "status",
+        "metric",
+        "mean",
+        "failed",
+        "time",
+        "run id",
+    ]
     table = [header]
     for r in rows:
         value = "-" if r.value is None else f"{r.value * r.scale:.3f}"
         metric = f"{r.metric} x{r.scale:g}" if r.metric else "-"
         variant = r.variant if r.kind == CELL_KIND else f"{r.variant} ({r.kind})"
-        table.append([
-            variant, f"{r.dataset}/{r.split}" if r.split else r.dataset,
-            "" if r.context_size is None else str(r.context_size),
-            "" if r.seed is None else str(r.seed), r.status, metric, value,
-            "" if r.failures is None else f"{r.failures}/{r.objects}",
-            _seconds(r.seconds), r.run_id,
-        ])  # fmt: skip
+        table.append(
+            [
+                variant,
+                f"{r.dataset}/{r.split}" if r.split else r.dataset,
+                "" if r.context_size is None else str(r.context_size),
+                "" if r.seed is None else str(r.seed),
+                r.status,
+                metric,
+                value,
+                "" if r.failures is None else f"{r.failures}/{r.objects}",
+                _seconds(r.seconds),
+                r.run_id,
+            ]
+        )
     widths = [max(len(row[i]) for row in table) for i in range(len(header))]
     numeric = {2, 3, 6, 7, 8}
-    return ["  ".join(cell.rjust(w) if i in numeric else cell.ljust(w)
-                      for i, (cell, w) in enumerate(zip(row, widths, strict=True))).rstrip()
-            for row in table]  # fmt: skip
+    return [
+        "  ".join(
+            cell.rjust(w) if i in numeric else cell.ljust(w)
+            for i, (cell, w) in enumerate(zip(row, widths, strict=True))
+        ).rstrip()
+        for row in table
+    ]
 
 
 def _seconds(seconds: float | None) -> str:
@@ -259,13 +293,22 @@ def find_run(client: Any, ref: str) -> Any:
             pass
     if len(ref) >= 4:
         experiments = _experiments(client)
-        matches = [r for r in client.search_runs(list(experiments), max_results=50000)
-                   if r.info.run_id.startswith(ref)] if experiments else []  # fmt: skip
+        matches = (
+            [
+                r
+                for r in client.search_runs(list(experiments), max_results=50000)
+                if r.info.run_id.startswith(ref)
+            ]
+            if experiments
+            else []
+        )
         if len(matches) == 1:
             return matches[0]
         if len(matches) > 1:
-            raise ShapebenchError(f"run id prefix {ref!r} matches {len(matches)} runs",
-                                  "give more characters of the run id")  # fmt: skip
+            raise ShapebenchError(
+                f"run id prefix {ref!r} matches {len(matches)} runs",
+                "give more characters of the run id",
+            )
     raise ShapebenchError(
         f"no run {ref!r} in this store",
         "list them with 'shapebench runs' (the last column is the run id; a unique prefix of at "
@@ -294,9 +337,10 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
     info = run.info
     experiments = _experiments(client)
     children = client.search_runs(
-        [info.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{info.run_id}'",
+        [info.experiment_id],
+        filter_string=f"tags.`mlflow.parentRunId` = '{info.run_id}'",
         max_results=1000,
-    )  # fmt: skip
+    )
     base = ui_base(settings)
     training = run.data.tags.get("training_run_id", "")
     training_url = ""
@@ -329,9 +373,20 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
 
 
 #: Tags ``show`` prints in its head, in this order (the rest follow under "tags").
-_HEAD_TAGS = ["variant.label", "method", "dataset", "split", "context_size", "seed",
-              "protocol.frame", "shapebench.cell_key", "checkpoint_key", "training_run_id",
-              "mlflow.source.git.commit", "shapebench.version"]  # fmt: skip
+_HEAD_TAGS = [
+    "variant.label",
+    "method",
+    "dataset",
+    "split",
+    "context_size",
+    "seed",
+    "protocol.frame",
+    "shapebench.cell_key",
+    "checkpoint_key",
+    "training_run_id",
+    "mlflow.source.git.commit",
+    "shapebench.version",
+]
 
 
 def format_details(d: RunDetails, all_tags: bool = False) -> list[str]:

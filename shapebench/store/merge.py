@@ -62,8 +62,10 @@ class MergeReport:
 
     def line(self) -> str:
         kinds = sorted(set(self.added) | set(self.present))
-        parts = [f"{self.added.get(k, 0)} {k} runs added, {self.present.get(k, 0)} already there"
-                 for k in kinds]  # fmt: skip
+        parts = [
+            f"{self.added.get(k, 0)} {k} runs added, {self.present.get(k, 0)} already there"
+            for k in kinds
+        ]
         if self.skipped_unfinished:
             parts.append(f"{self.skipped_unfinished} unfinished runs left out")
         if self.disagreeing:
@@ -109,8 +111,9 @@ def merge_stores(
     return report
 
 
-def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
-               report: MergeReport) -> None:  # fmt: skip
+def _merge_one(
+    source: Any, source_uri: str, target: Any, target_uri: str, report: MergeReport
+) -> None:
     batches = []
     for exp in source.search_experiments():
         runs = sorted(source.search_runs([exp.experiment_id], max_results=50000), key=_rank)
@@ -137,8 +140,9 @@ def _merge_one(source: Any, source_uri: str, target: Any, target_uri: str,
                 continue
             parent = merged.get(run.data.tags.get("mlflow.parentRunId", ""))
             training = merged.get(run.data.tags.get(TRAINING_RUN_TAG, ""))
-            merged[run.info.run_id] = _copy(source, target, target_exp, run, source_uri, parent,
-                                            training)  # fmt: skip
+            merged[run.info.run_id] = _copy(
+                source, target, target_exp, run, source_uri, parent, training
+            )
             report.added[kind] = report.added.get(kind, 0) + 1
 
 
@@ -177,8 +181,15 @@ def _find(client: Any, exp_id: str, kind: str, key: str, run: Any) -> Any | None
     return found[0] if found else None
 
 
-def _copy(source: Any, target: Any, exp_id: str, run: Any, source_uri: str,
-          parent: str | None, training: str | None = None) -> str:  # fmt: skip
+def _copy(
+    source: Any,
+    target: Any,
+    exp_id: str,
+    run: Any,
+    source_uri: str,
+    parent: str | None,
+    training: str | None = None,
+) -> str:
     from mlflow.entities import Metric, Param
 
     tags = {k: v for k, v in run.data.tags.items() if k != "mlflow.parentRunId"}
@@ -187,15 +198,18 @@ def _copy(source: Any, target: Any, exp_id: str, run: Any, source_uri: str,
         tags["mlflow.parentRunId"] = parent
     if training:
         tags[TRAINING_RUN_TAG] = training
-    new = target.create_run(exp_id, start_time=run.info.start_time, tags=tags,
-                            run_name=run.info.run_name)  # fmt: skip
+    new = target.create_run(
+        exp_id, start_time=run.info.start_time, tags=tags, run_name=run.info.run_name
+    )
     run_id = new.info.run_id
     params = [Param(k, v) for k, v in run.data.params.items()]
     for start in range(0, len(params), 100):
         target.log_batch(run_id, params=params[start : start + 100])
-    metrics = [Metric(m.key, m.value, m.timestamp, m.step)
-               for key in run.data.metrics
-               for m in source.get_metric_history(run.info.run_id, key)]  # fmt: skip
+    metrics = [
+        Metric(m.key, m.value, m.timestamp, m.step)
+        for key in run.data.metrics
+        for m in source.get_metric_history(run.info.run_id, key)
+    ]
     for start in range(0, len(metrics), 1000):
         target.log_batch(run_id, metrics=metrics[start : start + 1000])
     with tempfile.TemporaryDirectory() as tmp:

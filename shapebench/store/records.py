@@ -29,6 +29,8 @@ CELL_KEY_TAG = "shapebench.cell_key"
 #: The tag of a cell naming the training run its checkpoint came from.
 TRAINING_RUN_TAG = "training_run_id"
 METRIC_ERRORS_TAG = "shapebench.metric_errors"
+#: The tag of a training run whose weights are a shipped reference checkpoint.
+REFERENCE_TAG = "shapebench.reference"
 EVAL_POINTS_ACTUAL_TAG = "eval_points.actual"
 CARD_PREFIX = "card."
 
@@ -102,8 +104,9 @@ class CellRecord:
         tags["method.trains"] = str(self.trains)
         tags["protocol.context_normals"] = str(self.context_normals)
         if self.variant_key:
-            tags["variant.overrides"] = json.dumps(self.variant_overrides, sort_keys=True,
-                                                   default=str)  # fmt: skip
+            tags["variant.overrides"] = json.dumps(
+                self.variant_overrides, sort_keys=True, default=str
+            )
         for metric, card in self.cards.items():
             tags[CARD_PREFIX + metric] = card
         if self.metric_errors:
@@ -124,8 +127,9 @@ class CellRecord:
             values["variant_overrides"] = json.loads(tags.get("variant.overrides") or "{}")
         except ValueError:
             values["variant_overrides"] = {}
-        values["cards"] = {k[len(CARD_PREFIX) :]: v for k, v in tags.items()
-                           if k.startswith(CARD_PREFIX)}  # fmt: skip
+        values["cards"] = {
+            k[len(CARD_PREFIX) :]: v for k, v in tags.items() if k.startswith(CARD_PREFIX)
+        }
         values["eval_points_actual"] = int(tags.get(EVAL_POINTS_ACTUAL_TAG) or 0)
         crashed = tags.get(METRIC_ERRORS_TAG, "")
         values["metric_errors"] = tuple(m for m in crashed.split(",") if m)
@@ -150,9 +154,15 @@ class CellRecord:
     def row(self) -> dict[str, Any]:
         """The record as a flat dict keyed by tag name, with typed values (a leaderboard row)."""
         out: dict[str, Any] = {tag: getattr(self, name) for name, tag in _TAGS.items()}
-        out.update({"context_size": self.context_size, "seed": self.seed,
-                    "variant.overrides": json.dumps(self.variant_overrides, sort_keys=True,
-                                                    default=str),
-                    METRIC_ERRORS_TAG: ",".join(self.metric_errors)})  # fmt: skip
+        out.update(
+            {
+                "context_size": self.context_size,
+                "seed": self.seed,
+                "variant.overrides": json.dumps(
+                    self.variant_overrides, sort_keys=True, default=str
+                ),
+                METRIC_ERRORS_TAG: ",".join(self.metric_errors),
+            }
+        )
         out.update({CARD_PREFIX + m: c for m, c in self.cards.items()})
         return out

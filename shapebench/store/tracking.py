@@ -153,8 +153,9 @@ class Tracker:
         from shapebench.store.records import CellRecord
 
         record = CellRecord.from_run(runs[0])
-        return FinishedCell(runs[0].info.run_id, dict(runs[0].data.metrics),
-                            frozenset(record.metric_errors), record)  # fmt: skip
+        return FinishedCell(
+            runs[0].info.run_id, dict(runs[0].data.metrics), frozenset(record.metric_errors), record
+        )
 
     def abandon_stale(self, exp_id: str, key: str, tag: str = "shapebench.cell_key") -> int:
         """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""
@@ -197,14 +198,25 @@ class Tracker:
         items = [Metric(k, float(v), now, step) for k, v in sorted(metrics.items())]
         self.client.log_batch(run_id, metrics=items)
 
-    def log_dataset(self, run_id: str, name: str, digest: str, source: dict[str, Any],
-                    profile: dict[str, Any], context: str) -> None:  # fmt: skip
+    def log_dataset(
+        self,
+        run_id: str,
+        name: str,
+        digest: str,
+        source: dict[str, Any],
+        profile: dict[str, Any],
+        context: str,
+    ) -> None:
         """Record the evaluated objects as the run's dataset input (the UI's Dataset column)."""
         from mlflow.entities import Dataset, DatasetInput, InputTag
 
-        dataset = Dataset(name=name, digest=digest[:36], source_type="local",
-                          source=json.dumps(source, default=str),
-                          profile=json.dumps(profile, default=str))  # fmt: skip
+        dataset = Dataset(
+            name=name,
+            digest=digest[:36],
+            source_type="local",
+            source=json.dumps(source, default=str),
+            profile=json.dumps(profile, default=str),
+        )
         tags = [InputTag(key="mlflow.data.context", value=context)]
         self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset, tags=tags)])
 
@@ -228,21 +240,38 @@ def view_state(metrics: list[str]) -> dict[str, Any]:
     columns = [f"metrics.`{m}`" for m in metrics] + ["attributes.`Dataset`"]
     charts = [
         {
-            "type": "LINE", "uuid": f"shapebench-{i}", "metricSectionId": CHART_SECTION,
-            "isGenerated": False, "deleted": False, "runsCountToCompare": 10,
+            "type": "LINE",
+            "uuid": f"shapebench-{i}",
+            "metricSectionId": CHART_SECTION,
+            "isGenerated": False,
+            "deleted": False,
+            "runsCountToCompare": 10,
             "displayName": f"{metric} against context size",
-            "metricKey": metric, "selectedMetricKeys": [metric], "lineSmoothness": 0,
-            "xAxisKey": "step", "xAxisScaleType": "log", "scaleType": "linear",
-            "selectedXAxisMetricKey": "", "displayPoints": True, "yAxisKey": "metric",
-            "yAxisExpressions": [], "ignoreOutliers": False,
-            "useGlobalXaxisKey": False, "useGlobalLineSmoothing": False,
+            "metricKey": metric,
+            "selectedMetricKeys": [metric],
+            "lineSmoothness": 0,
+            "xAxisKey": "step",
+            "xAxisScaleType": "log",
+            "scaleType": "linear",
+            "selectedXAxisMetricKey": "",
+            "displayPoints": True,
+            "yAxisKey": "metric",
+            "yAxisExpressions": [],
+            "ignoreOutliers": False,
+            "useGlobalXaxisKey": False,
+            "useGlobalLineSmoothing": False,
             "range": {"xMin": None, "xMax": None, "yMin": None, "yMax": None},
         }
         for i, metric in enumerate(metrics)
-    ]  # fmt: skip
-    section = {"uuid": CHART_SECTION, "name": "Against context size (step = context points)",
-               "display": True, "isReordered": False, "deleted": False,
-               "isGenerated": False}  # fmt: skip
+    ]
+    section = {
+        "uuid": CHART_SECTION,
+        "name": "Against context size (step = context points)",
+        "display": True,
+        "isReordered": False,
+        "deleted": False,
+        "isGenerated": False,
+    }
     return {"selectedColumns": columns, "compareRunCharts": charts, "compareRunSections": [section]}
 
 
@@ -252,8 +281,9 @@ def experiment_url(base: str, exp_id: str, charts: bool = False, view: bool = Tr
     query = [f"viewStateShareKey={VIEW_KEY}"] if view else []
     if charts:
         query.append("compareRunsMode=CHART")
-    return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs" + ("?" + "&".join(query) if query
-                                                                else "")  # fmt: skip
+    return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs" + (
+        "?" + "&".join(query) if query else ""
+    )
 
 
 def run_url(base: str, exp_id: str, run_id: str) -> str:

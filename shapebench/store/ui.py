@@ -34,8 +34,10 @@ def check_port(host: str, port: int) -> None:
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as exc:
-        raise ShapebenchError(f"--host {host!r} is not an address of this machine ({exc})",
-                              "use 127.0.0.1, or 0.0.0.0 for every interface") from exc  # fmt: skip
+        raise ShapebenchError(
+            f"--host {host!r} is not an address of this machine ({exc})",
+            "use 127.0.0.1, or 0.0.0.0 for every interface",
+        ) from exc
     family, _, _, _, address = infos[0]
     with socket.socket(family, socket.SOCK_STREAM) as sock:
         # The server binds with SO_REUSEADDR too: a port in TIME_WAIT is free for both.
@@ -49,8 +51,9 @@ def check_port(host: str, port: int) -> None:
                     "program, is listening there)",
                     f"pick a free one: shapebench ui --port {port + 1}",
                 ) from exc
-            raise ShapebenchError(f"cannot listen on {host}:{port} ({exc.strerror})",
-                                  "use another --host or --port") from exc  # fmt: skip
+            raise ShapebenchError(
+                f"cannot listen on {host}:{port} ({exc.strerror})", "use another --host or --port"
+            ) from exc
 
 
 @dataclass
@@ -69,11 +72,15 @@ def experiment_links(client: object, base: str) -> list[ExperimentLink]:
     for exp in client.search_experiments():
         has_view = VIEW_TAG_PREFIX + VIEW_KEY in exp.tags
         runs = len(client.search_runs([exp.experiment_id], max_results=1000))
-        links.append(ExperimentLink(
-            exp.name, exp.experiment_id, runs,
-            experiment_url(base, exp.experiment_id, view=has_view),
-            experiment_url(base, exp.experiment_id, charts=True) if has_view else "",
-        ))  # fmt: skip
+        links.append(
+            ExperimentLink(
+                exp.name,
+                exp.experiment_id,
+                runs,
+                experiment_url(base, exp.experiment_id, view=has_view),
+                experiment_url(base, exp.experiment_id, charts=True) if has_view else "",
+            )
+        )
     return sorted(links, key=lambda link: (not link.charts, link.name))
 
 
@@ -88,8 +95,10 @@ def print_links(links: list[ExperimentLink], echo: Callable[[str], None]) -> Non
     if not links:
         echo("No experiments yet: run one (shapebench run -m gauss -d synthetic) and reload.")
         return
-    echo("Experiments (runs table; the charts link draws the primary metric against context "
-         "size, one line per method variant):")  # fmt: skip
+    echo(
+        "Experiments (runs table; the charts link draws the primary metric against context "
+        "size, one line per method variant):"
+    )
     for link in links:
         echo(f"  {link.name} ({link.runs} runs): {link.url}")
         if link.charts:
@@ -102,8 +111,9 @@ STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 STOP_GRACE_S = 10.0
 
 
-def serve(settings: Settings, host: str, port: int, workers: int,
-          echo: Callable[[str], None]) -> int:  # fmt: skip
+def serve(
+    settings: Settings, host: str, port: int, workers: int, echo: Callable[[str], None]
+) -> int:
     """Start the MLflow UI on the embedded store and wait until a signal stops it; return 0.
 
     Raises a :class:`ShapebenchError` when the server stops by itself."""
@@ -118,11 +128,21 @@ def serve(settings: Settings, host: str, port: int, workers: int,
     echo(f"MLflow UI: {base}  (store {settings.tracking_uri}; Ctrl-C stops)")
     print_links(experiment_links(client, base), echo)
     cmd = [
-        sys.executable, "-m", "mlflow", "ui",
-        "--backend-store-uri", settings.tracking_uri,
-        "--default-artifact-root", settings.artifact_root.as_uri(),
-        "--host", host, "--port", str(port), "--workers", str(workers),
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "mlflow",
+        "ui",
+        "--backend-store-uri",
+        settings.tracking_uri,
+        "--default-artifact-root",
+        settings.artifact_root.as_uri(),
+        "--host",
+        host,
+        "--port",
+        str(port),
+        "--workers",
+        str(workers),
+    ]
     # The background job runner serves MLflow's GenAI features, not run comparison; without it
     # the UI starts in seconds with a fraction of the memory.
     env = dict(os.environ)

@@ -100,8 +100,9 @@ def _apply(cfg: LauncherConfig, values: dict[str, Any], where: str) -> LauncherC
     return replace(cfg, **out)
 
 
-def launcher_config(block: dict[str, Any], overrides: dict[str, Any],
-                    name: str | None) -> LauncherConfig:  # fmt: skip
+def launcher_config(
+    block: dict[str, Any], overrides: dict[str, Any], name: str | None
+) -> LauncherConfig:
     """The sweep file's block, then the command line's ``--slurm`` values and ``--launcher``."""
     cfg = _apply(LauncherConfig(), block, "launcher")
     cfg = _apply(cfg, overrides, "--slurm")
@@ -159,10 +160,17 @@ class JobContext:
 
         spec = load_sweep(Path(self.sweep_file))
         if self.frame is not None or self.context_normals is not None:
-            spec = replace(spec, protocol=Protocol(
-                context_normals=(spec.protocol.context_normals if self.context_normals is None
-                                 else self.context_normals),
-                frame=self.frame or spec.protocol.frame))  # fmt: skip
+            spec = replace(
+                spec,
+                protocol=Protocol(
+                    context_normals=(
+                        spec.protocol.context_normals
+                        if self.context_normals is None
+                        else self.context_normals
+                    ),
+                    frame=self.frame or spec.protocol.frame,
+                ),
+            )
         return spec
 
     def trainer_for_seed(self, settings: Settings) -> Callable[[int], Any]:
@@ -207,9 +215,15 @@ class CellsJob:
         tracker = Tracker(settings)
         done, failed = [], []
         for cell in self.cells:
-            req = request(spec, methods[cell.method_index], spec.datasets[cell.dataset_index],
-                          quiet=True, splits=[cell.split], contexts=[cell.size],
-                          seeds=[cell.seed])  # fmt: skip
+            req = request(
+                spec,
+                methods[cell.method_index],
+                spec.datasets[cell.dataset_index],
+                quiet=True,
+                splits=[cell.split],
+                contexts=[cell.size],
+                seeds=[cell.seed],
+            )
             print(f"[shapebench] {cell.name} (cell key {cell.key})", flush=True)
             try:
                 outcome = evaluate(req, settings, self.ctx.trainer_for_seed(settings), tracker)
@@ -219,8 +233,9 @@ class CellsJob:
                 continue
             done += [c.run_id for c in outcome.cells]
         if failed:
-            raise ShapebenchError(f"{len(failed)} of {len(self.cells)} cells failed: "
-                                  + "; ".join(failed))  # fmt: skip
+            raise ShapebenchError(
+                f"{len(failed)} of {len(self.cells)} cells failed: " + "; ".join(failed)
+            )
         return done
 
     def checkpoint(self) -> Any:
@@ -274,8 +289,7 @@ def requeue_after(exc: BaseException) -> None:
     job = os.environ.get("SLURM_JOB_ID")
     if job and rank == "0":
         why = getattr(exc, "message", str(exc))
-        print(f"[shapebench] pre-empted ({why}); requeueing job {job}", file=sys.stderr,
-              flush=True)  # fmt: skip
+        print(f"[shapebench] pre-empted ({why}); requeueing job {job}", file=sys.stderr, flush=True)
         subprocess.run(["scontrol", "requeue", job], check=False, timeout=60)
     raise SystemExit(-1)
 
@@ -311,11 +325,16 @@ def _executor(cfg: LauncherConfig, folder: Path, ranks: int = 1, nodes: int = 1)
         return executor
     executor = submitit.SlurmExecutor(folder=str(folder))
     params: dict[str, Any] = dict(
-        time=cfg.time, nodes=nodes, ntasks_per_node=ranks, cpus_per_task=cfg.cpus_per_task,
-        array_parallelism=cfg.array_parallelism, signal_delay_s=cfg.signal_delay_s,
-        job_name="shapebench", setup=list(cfg.setup),
+        time=cfg.time,
+        nodes=nodes,
+        ntasks_per_node=ranks,
+        cpus_per_task=cfg.cpus_per_task,
+        array_parallelism=cfg.array_parallelism,
+        signal_delay_s=cfg.signal_delay_s,
+        job_name="shapebench",
+        setup=list(cfg.setup),
         additional_parameters=dict(cfg.extra),
-    )  # fmt: skip
+    )
     for key in ("partition", "account", "qos", "constraint"):
         if getattr(cfg, key):
             params[key] = getattr(cfg, key)
@@ -380,25 +399,35 @@ def submit_plan(
         if depends is not None:
             # afterok, and a failed training cancels its cells instead of leaving them queued.
             extra = {**mcfg.extra, "kill_on_invalid_dep": "yes"}
-            executor.update_parameters(dependency=f"afterok:{depends.job_id}",
-                                       additional_parameters=extra)  # fmt: skip
+            executor.update_parameters(
+                dependency=f"afterok:{depends.job_id}", additional_parameters=extra
+            )
         with executor.batch():
             submitted = [executor.submit(CellsJob(ctx, chunk)) for chunk in chunks]
         for job, chunk in zip(submitted, chunks, strict=True):
-            record = _record(job, "cells", [c.key for c in chunk], [c.name for c in chunk],
-                             depends.job_id if depends is not None else None)  # fmt: skip
+            record = _record(
+                job,
+                "cells",
+                [c.key for c in chunk],
+                [c.name for c in chunk],
+                depends.job_id if depends is not None else None,
+            )
             out.append((record, job))
         first = submitted[0].job_id if submitted else "-"
         after = f", after job {depends.job_id}" if depends is not None else ""
-        echo(f"  {len(submitted)} job(s) from {first}: {len(cells)} cells of "
-             f"{cells[0].label} on {cells[0].dataset}{after}")  # fmt: skip
+        echo(
+            f"  {len(submitted)} job(s) from {first}: {len(cells)} cells of "
+            f"{cells[0].label} on {cells[0].dataset}{after}"
+        )
     return out
 
 
-def _record(job: Any, kind: str, keys: list[str], names: list[str],
-            depends: str | None = None) -> Submitted:  # fmt: skip
-    return Submitted(str(job.job_id), kind, keys, names, str(job.paths.stdout),
-                     str(job.paths.stderr), depends)  # fmt: skip
+def _record(
+    job: Any, kind: str, keys: list[str], names: list[str], depends: str | None = None
+) -> Submitted:
+    return Submitted(
+        str(job.job_id), kind, keys, names, str(job.paths.stdout), str(job.paths.stderr), depends
+    )
 
 
 def write_manifest(path: Path, launcher: str, jobs: list[Submitted]) -> None:
@@ -437,8 +466,7 @@ def wait_for(jobs: list[Any], echo: Callable[[str], None], poll: float = 2.0) ->
             if type(job).__name__ == "LocalJob":
                 running = not job.done()
             else:
-                running = (_in_queue(str(job.job_id), queue)
-                           and not job.paths.result_pickle.exists())  # fmt: skip
+                running = _in_queue(str(job.job_id), queue) and not job.paths.result_pickle.exists()
             if running:
                 still.append(job)
                 continue
@@ -488,8 +516,9 @@ def merge_job_stores(settings: Settings, echo: Callable[[str], None]) -> None:
 def _queue() -> dict[str, str]:
     """SLURM's queue (job id -> state), empty where there is no ``squeue``."""
     try:
-        out = subprocess.run(["squeue", "-h", "-o", "%i %T"], capture_output=True, text=True,
-                             timeout=30, check=True).stdout  # fmt: skip
+        out = subprocess.run(
+            ["squeue", "-h", "-o", "%i %T"], capture_output=True, text=True, timeout=30, check=True
+        ).stdout
     except (OSError, subprocess.SubprocessError):
         return {}
     states = {}
@@ -524,8 +553,9 @@ class CellStatus:
     job: dict[str, Any] | None = None
 
 
-def sweep_status(plan: SweepPlan, settings: Settings, manifest: list[dict[str, Any]]) -> list[
-        CellStatus]:  # fmt: skip
+def sweep_status(
+    plan: SweepPlan, settings: Settings, manifest: list[dict[str, Any]]
+) -> list[CellStatus]:
     """Each cell's state from the store (finished), its claim lock (running), and the last job
     it was submitted in (queued, or failed when that job ended without finishing it)."""
     from shapebench.store.locks import try_lock
@@ -555,8 +585,7 @@ def sweep_status(plan: SweepPlan, settings: Settings, manifest: list[dict[str, A
     return out
 
 
-def print_status(statuses: list[CellStatus], plan: SweepPlan,
-                 echo: Callable[[str], None]) -> None:  # fmt: skip
+def print_status(statuses: list[CellStatus], plan: SweepPlan, echo: Callable[[str], None]) -> None:
     counts: dict[str, int] = {}
     for s in statuses:
         counts[s.state] = counts.get(s.state, 0) + 1
@@ -565,8 +594,9 @@ def print_status(statuses: list[CellStatus], plan: SweepPlan,
     shown += [f"{v} {k}" for k, v in counts.items() if k not in order]
     echo(f"{len(statuses)} cells: " + ", ".join(shown))
     if plan.trainings:
-        echo(f"{len(plan.trainings)} trainings missing: "
-             + ", ".join(t.name for t in plan.trainings))  # fmt: skip
+        echo(
+            f"{len(plan.trainings)} trainings missing: " + ", ".join(t.name for t in plan.trainings)
+        )
     for s in statuses:
         if s.state == "failed" and s.job is not None:
             echo(f"  failed: {s.cell.name}: job {s.job['job_id']}, log {s.job['stderr']}")
@@ -606,8 +636,15 @@ class PrepareJob:
         return submitit.helpers.DelayedSubmission(self)
 
 
-def prepare_on_cluster(req: Any, settings: Settings, launcher: str, shards: int, jobs: int,
-                       overrides: dict[str, Any], echo: Callable[[str], None]) -> int:  # fmt: skip
+def prepare_on_cluster(
+    req: Any,
+    settings: Settings,
+    launcher: str,
+    shards: int,
+    jobs: int,
+    overrides: dict[str, Any],
+    echo: Callable[[str], None],
+) -> int:
     """Prepare ``req`` as an array of ``shards`` jobs and wait for them; the number that failed."""
     if shards < 1:
         raise ShapebenchError(f"--shards must be at least 1, got {shards}")
@@ -616,8 +653,9 @@ def prepare_on_cluster(req: Any, settings: Settings, launcher: str, shards: int,
     folder.mkdir(parents=True, exist_ok=True)
     executor = _executor(cfg, folder)
     with executor.batch():
-        submitted = [executor.submit(PrepareJob(req, settings, i, shards, jobs))
-                     for i in range(shards)]  # fmt: skip
+        submitted = [
+            executor.submit(PrepareJob(req, settings, i, shards, jobs)) for i in range(shards)
+        ]
     echo(f"{shards} prepare jobs from {submitted[0].job_id}; logs under {folder}")
     failed = wait_for(submitted, echo)
     for job in submitted:

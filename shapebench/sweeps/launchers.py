@@ -60,8 +60,9 @@ def run_local(argv: list[str], jobs: int, log_dir: Path, echo: Callable[[str], N
         log = log_dir / f"sweep-{stamp}-worker{i}.log"
         with open(log, "w") as out:
             cmd = [sys.executable, "-m", "shapebench", "sweep", *worker_argv(argv, i)]
-            procs.append((subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT),
-                          log))  # fmt: skip
+            procs.append(
+                (subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT), log)
+            )
     echo(f"{jobs} workers, {threads} torch threads each; logs: {log_dir}/sweep-{stamp}-worker*.log")
     try:
         codes = [p.wait() for p, _ in procs]

@@ -101,8 +101,9 @@ def plan_sweep(
                 for split in sp.plan.splits:
                     exp_id = tracker.experiment_id(experiment_name(ds.name, split), create=False)
                     for seed, size, _cfg, key in planned_cells(sp.plan, split):
-                        cell = CellTask(mi, di, split, seed, size, key, sp.variant.label,
-                                        ds.name, training)  # fmt: skip
+                        cell = CellTask(
+                            mi, di, split, seed, size, key, sp.variant.label, ds.name, training
+                        )
                         out.cells.append(cell)
                         done = runner.finished(sp.plan, exp_id, key) if exp_id else None
                         if done is not None:

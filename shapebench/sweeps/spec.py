@@ -54,8 +54,14 @@ def _entries(value: Any, key: str, path: Path) -> list[Entry]:
         if isinstance(item, str):
             out.append(Entry(item))
         elif isinstance(item, dict) and "name" in item:
-            out.append(Entry(item["name"], dict(item.get("options") or {}),
-                             item.get("data_root"), item.get("label")))  # fmt: skip
+            out.append(
+                Entry(
+                    item["name"],
+                    dict(item.get("options") or {}),
+                    item.get("data_root"),
+                    item.get("label"),
+                )
+            )
         else:
             raise ConfigError(f"{path}: each of '{key}' is a name or {{name: ..., options: ...}}")
     return out
@@ -111,8 +117,10 @@ def _launcher_block(value: Any, path: Path) -> dict[str, Any]:
     if isinstance(value, str):
         return {"name": value}
     if not isinstance(value, dict):
-        raise ConfigError(f"{path}: 'launcher' is a name or a mapping like "
-                          "{name: slurm, partition: gpu, time: 120}")  # fmt: skip
+        raise ConfigError(
+            f"{path}: 'launcher' is a name or a mapping like "
+            "{name: slurm, partition: gpu, time: 120}"
+        )
     return dict(value)
 
 
@@ -130,8 +138,15 @@ def sweep_methods(spec: SweepSpec) -> list[Entry]:
     return list(methods)
 
 
-def request(spec: SweepSpec, method: Entry, dataset: Entry, force: bool = False,
-            quiet: bool = False, retrain: bool = False, **narrow: Any) -> EvalRequest:  # fmt: skip
+def request(
+    spec: SweepSpec,
+    method: Entry,
+    dataset: Entry,
+    force: bool = False,
+    quiet: bool = False,
+    retrain: bool = False,
+    **narrow: Any,
+) -> EvalRequest:
     """The ``shapebench run`` of one method on one dataset of the sweep; ``narrow`` (splits,
     contexts, seeds) restricts it to some of its cells, as a cluster job does."""
     return EvalRequest(
@@ -174,8 +189,9 @@ def run_sweep(
     for ds in spec.datasets:
         for m in methods:
             try:
-                yield evaluate(request(spec, m, ds, force, quiet, retrain), settings,
-                               trainer_for_seed, tracker)  # fmt: skip
+                yield evaluate(
+                    request(spec, m, ds, force, quiet, retrain), settings, trainer_for_seed, tracker
+                )
             except ShapebenchError as exc:  # one method failing must not stop the others
                 failures.append(f"{m.name} on {ds.name}: {exc.message}")
                 if on_error is not None:
@@ -231,8 +247,10 @@ class SweepProgress:
         eta = f", about {_duration(evaluating / computed * left)} left" if computed and left else ""
         already = f" ({self.cached} already done)" if self.cached else ""
         training = f" ({_duration(self.training)} training)" if self.training >= 1 else ""
-        return (f"sweep progress: {self.done}/{self.total} cells{already}, "
-                f"{_duration(elapsed)} elapsed{training}{eta}")  # fmt: skip
+        return (
+            f"sweep progress: {self.done}/{self.total} cells{already}, "
+            f"{_duration(elapsed)} elapsed{training}{eta}"
+        )
 
 
 def _duration(seconds: float) -> str:

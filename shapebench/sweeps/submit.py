@@ -32,8 +32,13 @@ def _trainer_for_seed(settings: Settings, given: dict[str, Any]):
     return lambda seed: trainer_options(settings, seed, **given)
 
 
-def show_status(spec: SweepSpec, settings: Settings, given: dict[str, Any],
-                overrides: dict[str, Any], launcher: str) -> None:  # fmt: skip
+def show_status(
+    spec: SweepSpec,
+    settings: Settings,
+    given: dict[str, Any],
+    overrides: dict[str, Any],
+    launcher: str,
+) -> None:
     """Print each cell's state; per-job stores are merged first, so finished means merged."""
     cfg = launcher_config(spec.launcher, overrides, launcher)
     if cfg.tracking == "per-job":
@@ -43,9 +48,18 @@ def show_status(spec: SweepSpec, settings: Settings, given: dict[str, Any],
     print_status(sweep_status(plan, settings, manifest), plan, click.echo)
 
 
-def cluster_sweep(spec: SweepSpec, sweep_file: Path, settings: Settings, given: dict[str, Any],
-                  overrides: dict[str, Any], launcher: str, jobs: int, wait: bool,
-                  frame: str | None, context_normals: bool | None) -> None:  # fmt: skip
+def cluster_sweep(
+    spec: SweepSpec,
+    sweep_file: Path,
+    settings: Settings,
+    given: dict[str, Any],
+    overrides: dict[str, Any],
+    launcher: str,
+    jobs: int,
+    wait: bool,
+    frame: str | None,
+    context_normals: bool | None,
+) -> None:
     """Submit the sweep's missing trainings and cells; submitit-local (or ``--wait``) waits for
     them, merges per-job stores and prints the status."""
     import os
@@ -57,8 +71,10 @@ def cluster_sweep(spec: SweepSpec, sweep_file: Path, settings: Settings, given: 
         merge_job_stores(settings, click.echo)
     plan = plan_sweep(spec, settings, _trainer_for_seed(settings, given))
     missing = plan.missing
-    click.echo(f"sweep {spec.name}: {len(plan.cells)} cells, {len(plan.finished)} finished, "
-               f"{len(missing)} to submit, {len(plan.trainings)} trainings to submit")  # fmt: skip
+    click.echo(
+        f"sweep {spec.name}: {len(plan.cells)} cells, {len(plan.finished)} finished, "
+        f"{len(missing)} to submit, {len(plan.trainings)} trainings to submit"
+    )
     for error in plan.errors:
         click.secho(f"  cannot run: {error}", fg="red", err=True)
     if not missing:
@@ -93,8 +109,11 @@ def cluster_sweep(spec: SweepSpec, sweep_file: Path, settings: Settings, given: 
     if per_job:
         merge_job_stores(settings, click.echo)
     plan = plan_sweep(spec, settings, _trainer_for_seed(settings, given))
-    print_status(sweep_status(plan, settings, read_manifest(manifest_path(settings, spec.name))),
-                 plan, click.echo)  # fmt: skip
+    print_status(
+        sweep_status(plan, settings, read_manifest(manifest_path(settings, spec.name))),
+        plan,
+        click.echo,
+    )
     if failed or plan.missing:
         raise ShapebenchError(
             f"{failed} jobs failed, {len(plan.missing)} cells are missing",

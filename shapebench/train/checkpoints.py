@@ -28,12 +28,16 @@ import inspect
 import io
 import json
 import re
-import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
 
-from shapebench.api.errors import ShapebenchError
+from shapebench.api.errors import (  # noqa: F401 (CorruptFileWarning, describe: imported from here too)
+    CorruptFileWarning,
+    ShapebenchError,
+    describe,
+    warn_corrupt,
+)
 
 #: Where a checkpoint written by shapebench keeps what shapebench needs to know about it.
 STAMP = "shapebench"
@@ -42,24 +46,6 @@ STAMP = "shapebench"
 DONE_FILE = "done.json"
 
 _ZIP_MAGIC = b"PK\x03\x04"
-
-
-class CorruptFileWarning(UserWarning):
-    """A cached file could not be read; it is deleted and rebuilt (the warning names it)."""
-
-
-def warn_corrupt(path: Path, reason: str, action: str) -> None:
-    """One line naming the damaged file, why it is unusable and what happens instead."""
-    warnings.warn(f"{path} is damaged ({reason}); {action}", CorruptFileWarning, stacklevel=3)
-
-
-def describe(exc: BaseException) -> str:
-    """An exception as one short line: its type and the first line of its message."""
-    lines = str(exc).strip().splitlines()
-    first = lines[0].strip() if lines else ""
-    if len(first) > 200:
-        first = first[:197] + "..."
-    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
 def _retrain_hint(path: Path) -> str:

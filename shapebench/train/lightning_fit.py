@@ -14,6 +14,7 @@ shapebench uses the ``pytorch_lightning`` namespace throughout; never mix in ``l
 from __future__ import annotations
 
 import json
+import re
 import sys
 import time
 from collections.abc import Iterator, Mapping
@@ -34,6 +35,17 @@ from shapebench.api.method import TrainingContext
 from shapebench.api.types import TRAIN, Supervision
 from shapebench.hashing import stable_seed
 from shapebench.progress import is_terminal
+
+
+def device_count(device: str) -> int:
+    """Devices of a ``training_device`` tag (``cpu x1``, ``cuda x4 (NVIDIA H100)``); 1 if none."""
+    match = re.search(r"\bx(\d+)", device or "")
+    return int(match.group(1)) if match else 1
+
+
+def device_hours(wall_seconds: float, devices: int) -> float:
+    """Devices held times wall time, in hours: what a cluster bills."""
+    return float(wall_seconds) * max(int(devices), 1) / 3600.0
 
 
 def seed_training(seed: int) -> None:
@@ -86,12 +98,14 @@ class EpochSeeds(pl.Callback):
         if isinstance(data, ShapeDataModule):
             data.start_epoch(trainer.current_epoch)
 
-    def on_train_batch_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
-                             batch: Any, batch_idx: int) -> None:  # fmt: skip
+    def on_train_batch_start(
+        self, trainer: pl.Trainer, pl_module: pl.LightningModule, batch: Any, batch_idx: int
+    ) -> None:
         seed = derived_seed(self.seed, "steps", trainer.global_rank, trainer.global_step)
         pl_module._step_generator = torch.Generator().manual_seed(seed)
-        torch.manual_seed(derived_seed(self.seed, "global", trainer.global_rank,
-                                       trainer.global_step))  # fmt: skip
+        torch.manual_seed(
+            derived_seed(self.seed, "global", trainer.global_rank, trainer.global_step)
+        )
 
 
 class ShapeSamples(TorchDataset):
@@ -104,11 +118,18 @@ class ShapeSamples(TorchDataset):
     :meth:`ShapeDataModule.start_epoch` sets :attr:`epoch`.
     """
 
-    def __init__(self, objects: list[dict[str, np.ndarray]], surface_points: int,
-                 sdf_points: int = 0, target_points: int = 0,
-                 query_points: int = 0, seed: int = 0) -> None:  # fmt: skip
-        self.objects = [{k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in o.items()}
-                        for o in objects]  # fmt: skip
+    def __init__(
+        self,
+        objects: list[dict[str, np.ndarray]],
+        surface_points: int,
+        sdf_points: int = 0,
+        target_points: int = 0,
+        query_points: int = 0,
+        seed: int = 0,
+    ) -> None:
+        self.objects = [
+            {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in o.items()} for o in objects
+        ]
         self.surface_points = surface_points
         self.sdf_points = sdf_points
         self.target_points = target_points
@@ -205,9 +226,16 @@ class ShapeDataModule(pl.LightningDataModule):
     the dataset's uniform occupancy samples; ``need`` must then ask for SDF samples.
     """
 
-    def __init__(self, dataset: Dataset, need: frozenset[Supervision],
-                 samples: Mapping[Supervision, int], batch_size: int, seed: int = 0,
-                 quiet: bool = False, queries_from_sdf: bool = False) -> None:  # fmt: skip
+    def __init__(
+        self,
+        dataset: Dataset,
+        need: frozenset[Supervision],
+        samples: Mapping[Supervision, int],
+        batch_size: int,
+        seed: int = 0,
+        quiet: bool = False,
+        queries_from_sdf: bool = False,
+    ) -> None:
         super().__init__()
         self.quiet = quiet
         self.dataset = dataset
@@ -233,8 +261,7 @@ class ShapeDataModule(pl.LightningDataModule):
         refs = self.dataset.objects(TRAIN)
         if not refs:
             raise ShapebenchError(f"dataset {self.dataset.name!r} has no training objects")
-        for ref in progress_bar(desc="loading training objects", quiet=self.quiet,
-                                iterable=refs):  # fmt: skip
+        for ref in progress_bar(desc="loading training objects", quiet=self.quiet, iterable=refs):
             try:
                 data = self.dataset.load(ref, need=self.need)
             except ObjectLoadError:
@@ -257,8 +284,14 @@ class ShapeDataModule(pl.LightningDataModule):
         return arrays
 
     def train_dataloader(self) -> DataLoader:
-        samples = ShapeSamples(self._objects, self.surface_points, self.sdf_points,
-                               self.target_points, self.query_points, self.seed)  # fmt: skip
+        samples = ShapeSamples(
+            self._objects,
+            self.surface_points,
+            self.sdf_points,
+            self.target_points,
+            self.query_points,
+            self.seed,
+        )
         self._samples = samples
         self._order = EpochShuffle(len(samples), self.seed)
         batch = min(self.batch_size, len(samples))
@@ -269,8 +302,9 @@ class ShapeDataModule(pl.LightningDataModule):
         self.start_epoch(trainer.fit_loop.epoch_progress.current.processed if trainer else 0)
         if trainer is not None:
             self._order.skip = batch * steps_into_epoch(trainer, -(-len(samples) // batch))
-        return DataLoader(samples, batch_size=batch, sampler=self._order, num_workers=0,
-                          drop_last=False)  # fmt: skip
+        return DataLoader(
+            samples, batch_size=batch, sampler=self._order, num_workers=0, drop_last=False
+        )
 
     def start_epoch(self, epoch: int) -> None:
         """Seed the shuffle order and the data draws of ``epoch`` (see :class:`EpochSeeds`)."""
@@ -288,8 +322,9 @@ class TrainingInterrupted(Interrupted):
     """Ctrl-C or SIGTERM (or SLURM's pre-emption warning) stopped a training; the checkpoint to
     resume from is kept. ``signal_name`` is the signal that asked for it (``SIGINT``...)."""
 
-    def __init__(self, message: str, hint: str | None = None,
-                 signal_name: str | None = None) -> None:  # fmt: skip
+    def __init__(
+        self, message: str, hint: str | None = None, signal_name: str | None = None
+    ) -> None:
         super().__init__(message, hint)
         self.signal_name = signal_name
 
@@ -312,8 +347,9 @@ class AtomicCheckpointIO(TorchCheckpointIO):
     destination: a kill at any moment leaves either the previous checkpoint or the new one,
     never a truncated file."""
 
-    def save_checkpoint(self, checkpoint: dict[str, Any], path: Any,
-                        storage_options: Any | None = None) -> None:  # fmt: skip
+    def save_checkpoint(
+        self, checkpoint: dict[str, Any], path: Any, storage_options: Any | None = None
+    ) -> None:
         import os
 
         path = Path(path)
@@ -358,8 +394,9 @@ class EpochCheckpoints(pl.Callback):
             self._last = time.monotonic()
             self.saved_epochs = done
 
-    def on_save_checkpoint(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
-                           checkpoint: dict[str, Any]) -> None:  # fmt: skip
+    def on_save_checkpoint(
+        self, trainer: pl.Trainer, pl_module: pl.LightningModule, checkpoint: dict[str, Any]
+    ) -> None:
         from shapebench.train.checkpoints import STAMP
 
         checkpoint[STAMP] = {"key": self.key}
@@ -391,8 +428,11 @@ class StopOnSignal(pl.Callback):
         if self.requested is not None:  # asked twice: stop now, without saving
             raise KeyboardInterrupt
         self.requested = signal.Signals(signum).name
-        print(f"\n{self.requested}: stopping after the current optimiser step (Ctrl-C again to "
-              "stop at once)", file=sys.stderr)  # fmt: skip
+        print(
+            f"\n{self.requested}: stopping after the current optimiser step (Ctrl-C again to "
+            "stop at once)",
+            file=sys.stderr,
+        )
 
     def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         import signal
@@ -411,8 +451,14 @@ class StopOnSignal(pl.Callback):
             signal.signal(sig, handler)
         self._previous.clear()
 
-    def on_train_batch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule,
-                           outputs: Any, batch: Any, batch_idx: int) -> None:  # fmt: skip
+    def on_train_batch_end(
+        self,
+        trainer: pl.Trainer,
+        pl_module: pl.LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+    ) -> None:
         if batch_idx + 1 >= trainer.num_training_batches:
             return  # the epoch's last step: stop at its end (on_train_epoch_end), not before
         if self._asked(trainer):
@@ -503,8 +549,9 @@ def _kept(last: Path) -> str:
     return f"its checkpoint ({_describe(state)}) is kept at {last}"
 
 
-def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext,
-                  max_epochs: int) -> Path:  # fmt: skip
+def fit_lightning(
+    module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext, max_epochs: int
+) -> Path:
     """One ``Trainer.fit``; resumes from ``<workdir>/last.ckpt``; returns that checkpoint.
 
     Reproducible: Lightning's ``seed_everything`` seeds the global generators (weight
@@ -534,20 +581,29 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     warnings.filterwarnings("ignore", message=r".*The `srun` command is available")
     # Lightning cannot know that our sampler skips the batches a mid-epoch checkpoint had done.
     warnings.filterwarnings("ignore", message=r".*resuming from a checkpoint that ended before")
-    logger = (MLFlowLogger(tracking_uri=ctx.tracking_uri, run_id=ctx.run_id)
-              if ctx.run_id else False)  # fmt: skip
+    logger = MLFlowLogger(tracking_uri=ctx.tracking_uri, run_id=ctx.run_id) if ctx.run_id else False
     last = ctx.workdir / LAST
-    saver = EpochCheckpoints(last, ctx.workdir.name, t.checkpoint_every_epochs,
-                             t.checkpoint_minutes)  # fmt: skip
+    saver = EpochCheckpoints(
+        last, ctx.workdir.name, t.checkpoint_every_epochs, t.checkpoint_minutes
+    )
     stopper = StopOnSignal(last)
     trainer = pl.Trainer(
-        accelerator=t.accelerator, devices=t.devices, strategy=t.strategy, num_nodes=t.num_nodes,
-        precision=t.precision, max_epochs=t.max_epochs or max_epochs, logger=logger,
-        callbacks=[saver, EpochSeeds(t.seed), stopper], default_root_dir=ctx.workdir,
-        enable_checkpointing=False, plugins=[AtomicCheckpointIO(), *_cluster_environment()],
-        log_every_n_steps=1, enable_model_summary=False, deterministic="warn",
+        accelerator=t.accelerator,
+        devices=t.devices,
+        strategy=t.strategy,
+        num_nodes=t.num_nodes,
+        precision=t.precision,
+        max_epochs=t.max_epochs or max_epochs,
+        logger=logger,
+        callbacks=[saver, EpochSeeds(t.seed), stopper],
+        default_root_dir=ctx.workdir,
+        enable_checkpointing=False,
+        plugins=[AtomicCheckpointIO(), *_cluster_environment()],
+        log_every_n_steps=1,
+        enable_model_summary=False,
+        deterministic="warn",
         enable_progress_bar=not ctx.quiet and is_terminal(),  # no bar in logs
-    )  # fmt: skip
+    )
     state = _resume_state(last, ctx.workdir.name)
     resumed = _epochs_of(state) if state is not None else None
     if state is not None and trainer.is_global_zero:  # one line, worth it even when quiet
@@ -555,8 +611,12 @@ def fit_lightning(module: pl.LightningModule, data: ShapeDataModule, ctx: Traini
     start = time.perf_counter()
     try:
         # weights_only: resuming reads tensors and plain values only, never pickled objects.
-        trainer.fit(module, datamodule=data, ckpt_path=str(last) if last.exists() else None,
-                    weights_only=True)  # fmt: skip
+        trainer.fit(
+            module,
+            datamodule=data,
+            ckpt_path=str(last) if last.exists() else None,
+            weights_only=True,
+        )
     except (StopRequested, SystemExit, KeyboardInterrupt, SIGTERMException) as exc:
         # Lightning turns a KeyboardInterrupt into SystemExit(1) after its own clean-up.
         raise TrainingInterrupted(
@@ -583,15 +643,21 @@ def training_summary(trainer: pl.Trainer, seconds: float) -> dict[str, Any]:
     kind = f"{device.type} x{trainer.num_devices * trainer.num_nodes}"
     if device.type == "cuda":
         kind += f" ({torch.cuda.get_device_name(device)})"
-    terms = {k: float(v) for k, v in sorted(trainer.callback_metrics.items())
-             if k.startswith("train/")}  # fmt: skip
-    from shapebench.boards.cost import device_hours
+    terms = {
+        k: float(v) for k, v in sorted(trainer.callback_metrics.items()) if k.startswith("train/")
+    }
 
     # Device-hours: every device is held for the whole wall time (what a cluster bills).
     devices = int(trainer.num_devices * trainer.num_nodes)
-    return {"wall_seconds": seconds, "device": kind, "devices": devices,
-            "device_hours": device_hours(seconds, devices), "epochs": int(trainer.current_epoch),
-            "optimizer_steps": int(trainer.global_step), "final": terms}  # fmt: skip
+    return {
+        "wall_seconds": seconds,
+        "device": kind,
+        "devices": devices,
+        "device_hours": device_hours(seconds, devices),
+        "epochs": int(trainer.current_epoch),
+        "optimizer_steps": int(trainer.global_step),
+        "final": terms,
+    }
 
 
 def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = False) -> None:
@@ -601,18 +667,23 @@ def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = Fa
         final = ", ".join(f"{k.removeprefix('train/')} {v:.4g}" for k, v in terms)
         hours = summary.get("device_hours")
         spent = f" ({hours:.3g} device-hours)" if hours is not None else ""
-        print(f"training done in {summary['wall_seconds']:.1f} s on {summary['device']}{spent}: "
-              f"{summary['epochs']} epochs, {summary['optimizer_steps']} optimiser steps; "
-              f"final {final or 'no logged terms'}", file=sys.stderr)  # fmt: skip
+        print(
+            f"training done in {summary['wall_seconds']:.1f} s on {summary['device']}{spent}: "
+            f"{summary['epochs']} epochs, {summary['optimizer_steps']} optimiser steps; "
+            f"final {final or 'no logged terms'}",
+            file=sys.stderr,
+        )
     if logger is None:
         return
-    metrics = {"summary/wall_seconds": summary["wall_seconds"],
-               **({"summary/device_hours": summary["device_hours"]}
-                  if "device_hours" in summary else {}),
-               "summary/epochs": float(summary["epochs"]),
-               "summary/optimizer_steps": float(summary["optimizer_steps"])}  # fmt: skip
-    metrics.update({f"summary/final_{k.removeprefix('train/')}": v
-                    for k, v in summary["final"].items()})  # fmt: skip
+    metrics = {
+        "summary/wall_seconds": summary["wall_seconds"],
+        **({"summary/device_hours": summary["device_hours"]} if "device_hours" in summary else {}),
+        "summary/epochs": float(summary["epochs"]),
+        "summary/optimizer_steps": float(summary["optimizer_steps"]),
+    }
+    metrics.update(
+        {f"summary/final_{k.removeprefix('train/')}": v for k, v in summary["final"].items()}
+    )
     logger.log_metrics(metrics, step=summary["optimizer_steps"])
     logger.experiment.set_tag(logger.run_id, "training_device", summary["device"])
 

@@ -127,7 +127,10 @@ def export(last_ckpt: Path, folder: Path, info: dict[str, Any]) -> Reference:
     kept = {k: checkpoint[k] for k in KEPT_ENTRIES if k in checkpoint}
     folder.mkdir(parents=True, exist_ok=True)
     torch.save(kept, folder / CHECKPOINT_FILE)
-    info = {**info, "sha256": file_sha256(folder / CHECKPOINT_FILE),
-            "bytes": (folder / CHECKPOINT_FILE).stat().st_size}  # fmt: skip
+    info = {
+        **info,
+        "sha256": file_sha256(folder / CHECKPOINT_FILE),
+        "bytes": (folder / CHECKPOINT_FILE).stat().st_size,
+    }
     (folder / INFO_FILE).write_text(json.dumps(info, indent=1, sort_keys=True) + "\n")
     return Reference(folder, info)

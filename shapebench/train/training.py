@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING, Any
 from shapebench.api.dataset import Dataset
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import TrainerOptions, TrainingContext
-from shapebench.boards.cost import REFERENCE_TAG
 from shapebench.config import Settings
 from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
+from shapebench.store.records import REFERENCE_TAG
 from shapebench.store.tracking import TRAINING_KIND, Tracker, flatten, training_experiment_name
 
 if TYPE_CHECKING:
@@ -204,8 +204,11 @@ def train_here(
         watch_parent()
 
         def waiting(holder: str) -> None:
-            print(f"waiting for {holder}, which is training {method.name} on {dataset.name} "
-                  f"(checkpoint key {key})", file=sys.stderr)  # fmt: skip
+            print(
+                f"waiting for {holder}, which is training {method.name} on {dataset.name} "
+                f"(checkpoint key {key})",
+                file=sys.stderr,
+            )
 
         lock = wait_lock(lock_path(workdir), waiting)
     try:
@@ -242,10 +245,12 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
         }
         if (workdir / LAST).exists():
             tags["resumed"] = "true"
-        label = method.name + (f" epochs={method.options.epochs}"
-                               if hasattr(method.options, "epochs") else "")  # fmt: skip
-        run_id = tracker.start_run(exp, f"train {label} on {dataset.name} seed={trainer.seed}",
-                                   tags)  # fmt: skip
+        label = method.name + (
+            f" epochs={method.options.epochs}" if hasattr(method.options, "epochs") else ""
+        )
+        run_id = tracker.start_run(
+            exp, f"train {label} on {dataset.name} seed={trainer.seed}", tags
+        )
         tracker.log_params(run_id, _training_params(method, dataset, trainer))
         os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
     instance = method.instantiate()
@@ -269,9 +274,15 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
 
 
 def _training_params(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions):
-    return flatten("", {"method": method.config(), "trainer": asdict(trainer),
-                        "training": training_identity(method, trainer),
-                        "dataset": dataset.config()})  # fmt: skip
+    return flatten(
+        "",
+        {
+            "method": method.config(),
+            "trainer": asdict(trainer),
+            "training": training_identity(method, trainer),
+            "dataset": dataset.config(),
+        },
+    )
 
 
 def find_reference(method: ResolvedMethod, key: str) -> Reference | None:
@@ -327,29 +338,47 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
 
     info = reference.info
     summary = info.get("summary") or {}
-    print(f"{method.name}: using the reference checkpoint for key {key} ({reference.folder}; "
-          f"trained with '{info.get('command', '?')}' in {summary.get('wall_seconds', 0):.0f} s "
-          f"on {summary.get('device', '?')}); --retrain trains it here instead",
-          file=sys.stderr, flush=True)  # fmt: skip
+    print(
+        f"{method.name}: using the reference checkpoint for key {key} ({reference.folder}; "
+        f"trained with '{info.get('command', '?')}' in {summary.get('wall_seconds', 0):.0f} s "
+        f"on {summary.get('device', '?')}); --retrain trains it here instead",
+        file=sys.stderr,
+        flush=True,
+    )
     path = install(reference, workdir)
     tracker = Tracker(settings)
     exp = tracker.experiment_id(training_experiment_name(dataset.name))
-    tags = {"shapebench.kind": TRAINING_KIND, "method": method.name, "dataset": dataset.name,
-            "checkpoint_key": key, REFERENCE_TAG: reference.origin,
-            "training_device": str(summary.get("device", ""))}  # fmt: skip
-    run_id = tracker.start_run(exp, f"reference {method.name} on {dataset.name} "
-                                    f"seed={trainer.seed}", tags)  # fmt: skip
+    tags = {
+        "shapebench.kind": TRAINING_KIND,
+        "method": method.name,
+        "dataset": dataset.name,
+        "checkpoint_key": key,
+        REFERENCE_TAG: reference.origin,
+        "training_device": str(summary.get("device", "")),
+    }
+    run_id = tracker.start_run(
+        exp, f"reference {method.name} on {dataset.name} seed={trainer.seed}", tags
+    )
     tracker.log_params(run_id, _training_params(method, dataset, trainer))
-    metrics = {f"summary/{k}": float(summary[k])
-               for k in ("wall_seconds", "device_hours", "epochs", "optimizer_steps")
-               if isinstance(summary.get(k), (int, float))}  # fmt: skip
-    metrics.update({f"summary/final_{k.removeprefix('train/')}": float(v)
-                    for k, v in (summary.get("final") or {}).items()})  # fmt: skip
+    metrics = {
+        f"summary/{k}": float(summary[k])
+        for k in ("wall_seconds", "device_hours", "epochs", "optimizer_steps")
+        if isinstance(summary.get(k), (int, float))
+    }
+    metrics.update(
+        {
+            f"summary/final_{k.removeprefix('train/')}": float(v)
+            for k, v in (summary.get("final") or {}).items()
+        }
+    )
     tracker.log_metrics(run_id, metrics, step=int(summary.get("optimizer_steps", 0)))
     described = json.dumps(info, indent=1, sort_keys=True)
-    tracker.client.set_tag(run_id, "mlflow.note.content",
-                           "Reference checkpoint shipped with shapebench, not trained here."
-                           f"\n\n```json\n{described}\n```")  # fmt: skip
+    tracker.client.set_tag(
+        run_id,
+        "mlflow.note.content",
+        "Reference checkpoint shipped with shapebench, not trained here."
+        f"\n\n```json\n{described}\n```",
+    )
     tracker.end(run_id)
     record = {"key": key, "path": str(path), "run_id": run_id, "weights": reference.origin}
     tmp = workdir / "done.json.tmp"
@@ -417,8 +446,12 @@ def ensure_checkpoint(
         cmd.append("--retrain")
     # Why a (possibly long) training starts now, before its own output.
     resume = " (resuming from its last checkpoint)" if (workdir / "last.ckpt").exists() else ""
-    print(f"training {method.name} on {dataset.name}: no checkpoint for key {key} in "
-          f"{workdir.parent}{resume}", file=sys.stderr, flush=True)  # fmt: skip
+    print(
+        f"training {method.name} on {dataset.name}: no checkpoint for key {key} in "
+        f"{workdir.parent}{resume}",
+        file=sys.stderr,
+        flush=True,
+    )
     env = {k: v for k, v in os.environ.items() if k != RUN_ID_ENV}
     # `python -m` would put the working directory first on sys.path: a checkout of shapebench in
     # it would then train with other code than this process evaluates with (and under another

@@ -1,7 +1,7 @@
 """The LightningModule base of the trained methods: built from the method's options dataclass.
 
 Imports Lightning: only a method's ``module.py`` imports it, lazily (see
-:class:`~shapebench.implicit.method_base.LightningMethod`).
+:class:`~shapebench.train.lightning_method.LightningMethod`).
 """
 
 from __future__ import annotations
