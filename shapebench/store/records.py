@@ -29,6 +29,8 @@ CELL_KEY_TAG = "shapebench.cell_key"
 #: The tag of a cell naming the training run its checkpoint came from.
 TRAINING_RUN_TAG = "training_run_id"
 METRIC_ERRORS_TAG = "shapebench.metric_errors"
+#: The device a training ran on (``cpu x1``, ``cuda x4 (NVIDIA H100)``).
+TRAINING_DEVICE_TAG = "training_device"
 #: The tag of a training run whose weights are a shipped reference checkpoint.
 REFERENCE_TAG = "shapebench.reference"
 EVAL_POINTS_ACTUAL_TAG = "eval_points.actual"

@@ -435,3 +435,18 @@ def flatten(prefix: str, obj: Any) -> dict[str, Any]:
             out.update(flatten(f"{prefix}.{k}" if prefix else str(k), v))
         return out
     return {prefix: obj}
+
+
+def lightning_logger(tracking_uri: str, run_id: str) -> Any:
+    """Lightning's MLFlowLogger, writing a training's curves into its run ``run_id``."""
+    from pytorch_lightning.loggers import MLFlowLogger
+
+    return MLFlowLogger(tracking_uri=tracking_uri, run_id=run_id)
+
+
+def log_training_summary(logger: Any, metrics: dict[str, float], step: int, device: str) -> None:
+    """A finished training's ``summary/*`` metrics and its device tag, through its logger."""
+    from shapebench.store.records import TRAINING_DEVICE_TAG
+
+    logger.log_metrics(metrics, step=step)
+    logger.experiment.set_tag(logger.run_id, TRAINING_DEVICE_TAG, device)

@@ -569,7 +569,7 @@ def fit_lightning(
     import logging
     import warnings
 
-    from pytorch_lightning.loggers import MLFlowLogger
+    from shapebench.store.tracking import lightning_logger
 
     t = ctx.trainer
     seed_training(t.seed)
@@ -581,7 +581,7 @@ def fit_lightning(
     warnings.filterwarnings("ignore", message=r".*The `srun` command is available")
     # Lightning cannot know that our sampler skips the batches a mid-epoch checkpoint had done.
     warnings.filterwarnings("ignore", message=r".*resuming from a checkpoint that ended before")
-    logger = MLFlowLogger(tracking_uri=ctx.tracking_uri, run_id=ctx.run_id) if ctx.run_id else False
+    logger = lightning_logger(ctx.tracking_uri, ctx.run_id) if ctx.run_id else False
     last = ctx.workdir / LAST
     saver = EpochCheckpoints(
         last, ctx.workdir.name, t.checkpoint_every_epochs, t.checkpoint_minutes
@@ -684,8 +684,9 @@ def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = Fa
     metrics.update(
         {f"summary/final_{k.removeprefix('train/')}": v for k, v in summary["final"].items()}
     )
-    logger.log_metrics(metrics, step=summary["optimizer_steps"])
-    logger.experiment.set_tag(logger.run_id, "training_device", summary["device"])
+    from shapebench.store.tracking import log_training_summary
+
+    log_training_summary(logger, metrics, summary["optimizer_steps"], summary["device"])
 
 
 def adam_halving(params, lr: float, every: int) -> dict:
