@@ -145,9 +145,12 @@ def test_device_count_reads_the_training_device_tag():
 
 @pytest.mark.slow  # builds an MLflow store: a few seconds
 def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
-    from mlflow.tracking import MlflowClient
+    from shapebench.config import make_settings
+    from shapebench.store.tracking import Tracker
 
-    client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    tracker = Tracker(make_settings(uri, tmp_path / "cache", "quick", tmp_path))
+    client = tracker.client  # the test writes training runs as MLflow holds them
     exp = client.create_experiment("synthetic-train")
     new = client.create_run(exp, tags={"training_device": "cuda x4 (NVIDIA H100)"}).info.run_id
     for key, value in {
@@ -161,7 +164,7 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
     old = client.create_run(exp, tags={"training_device": "cuda x2"}).info.run_id
     client.log_metric(old, "summary/wall_seconds", 3600.0)
     runs = pd.DataFrame(
-        {"variant.key": ["msc", "msc", "old", "gauss"], "training_run_id": [new, new, old, ""]}
+        {"variant_key": ["msc", "msc", "old", "gauss"], "training_run_id": [new, new, old, ""]}
     )
     per_object = pd.DataFrame(
         {
@@ -170,7 +173,7 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
             "seconds": [1.0, 3.0, 50.0, 2.0, 0.01, 0.03],
         }
     )
-    costs = row_costs(client, runs, per_object).set_index("variant")
+    costs = row_costs(tracker, runs, per_object).set_index("variant")
     assert costs.loc["msc", "seconds_per_object"] == pytest.approx(2.0)  # successes only
     assert costs.loc["msc", "train_device_hours"] == pytest.approx(1.0)
     assert costs.loc["msc", "train_device"] == "cuda x4 (NVIDIA H100)"

@@ -107,14 +107,14 @@ def _log_cell(client, exp_id: str, method: str, card: str) -> None:
         tags={
             "shapebench.kind": "cell",
             "method": method,
-            "method.display_name": method,
+            "display_name": method,
             "dataset": "synthetic",
-            "dataset.fingerprint": "f",
+            "fingerprint": "f",
             "context_size": "50",
             "seed": "0",
             "card.chamfer-l2": card,
-            "variant.key": method,
-            "variant.label": method,
+            "variant_key": method,
+            "variant_label": method,
         },
     )
     client.set_terminated(run.info.run_id)
@@ -140,12 +140,12 @@ def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
 
     def run(key: str, seed: int, start: int, ckpt: str) -> dict:
         return {
-            "variant.key": key,
+            "variant_key": key,
             "_label": key,
             "method": key,
-            "method.display_name": key,
-            "variant.overrides": "{}",
-            "method.code": "c0de",
+            "display_name": key,
+            "variant_overrides": "{}",
+            "method_code": "c0de",
             "checkpoint_key": ckpt,
             "seed": str(seed),
             "start": start,

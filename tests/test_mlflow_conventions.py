@@ -7,23 +7,17 @@ and forced reruns apart, notes with the summary, and no stray "Default" experime
 from __future__ import annotations
 
 import json
-from types import SimpleNamespace
 
 import mlflow
 import pytest
 from conftest import TINY, Shapebench
 
 from shapebench.config import make_settings
-from shapebench.evaluate.runner import Runner
 from shapebench.store.listing import list_runs
+from shapebench.store.presentation import training_link
 from shapebench.store.provenance import git_commit
-from shapebench.store.tracking import (
-    TRAINING_KIND,
-    VIEW_KEY,
-    VIEW_TAG_PREFIX,
-    Tracker,
-    training_experiment_name,
-)
+from shapebench.store.records import TRAINING_KIND, VIEW_TAG_PREFIX
+from shapebench.store.tracking import VIEW_KEY, Tracker, training_experiment_name
 
 SPLIT = ["--split", "novel", "--contexts", "50,100", "-q"]
 
@@ -152,9 +146,8 @@ def test_trainings_of_old_and_new_stores_list_alike(tmp_path):
     assert sorted(r.run_id for r in rows) == sorted(ids)
     assert {r.experiment for r in rows} == {"synthetic-train", "training/synthetic"}
     # A cell's note links its training run on the training's own experiment page.
-    runner = Runner(tracker)
     exp_id = tracker.client.get_run(ids[1]).info.experiment_id
-    link = runner._training_link(SimpleNamespace(checkpoint={"run_id": ids[1]}))
+    link = training_link(tracker, ids[1])
     assert link == f"[training run {ids[1][:8]}](#/experiments/{exp_id}/runs/{ids[1]})"
-    missing = runner._training_link(SimpleNamespace(checkpoint={"run_id": "f" * 32}))
+    missing = training_link(tracker, "f" * 32)
     assert "not in this store" in missing

@@ -57,7 +57,7 @@ def test_tags_of_an_older_store_read_with_defaults():
     assert record.metric_errors == () and record.cards == {"chamfer-l2": CARD.as_tag()}
 
 
-def test_a_row_is_keyed_by_tag_name_with_typed_values():
+def test_a_row_is_keyed_by_field_name_with_typed_values():
     row = _record().row()
-    assert row["context_size"] == 50 and row["variant.key"] == "v1"
-    assert row["card.chamfer-l2"] == CARD.as_tag() and row["shapebench.metric_errors"] == "crashy"
+    assert row["context_size"] == 50 and row["variant_key"] == "v1"
+    assert row["card.chamfer-l2"] == CARD.as_tag() and row["metric_errors"] == "crashy"

@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from shapebench.store.records import REFERENCE_TAG
+from shapebench.store.records import REFERENCE_TAG, TRAINING_DEVICE_TAG
+from shapebench.store.tracking import Tracker
 from shapebench.train.lightning_fit import device_count, device_hours
 
 #: Columns :func:`row_costs` returns, besides ``variant``.
@@ -46,14 +47,14 @@ class TrainingCost:
     weights: str = "local"
 
     @classmethod
-    def from_run(cls, run: Any) -> TrainingCost:
-        metrics, tags = run.data.metrics, run.data.tags
-        device = tags.get("training_device", "")
+    def from_run(cls, run_id: str, metrics: dict[str, float], tags: dict[str, str]) -> TrainingCost:
+        """The cost a training run logged (its ``summary/*`` metrics and device tag)."""
+        device = tags.get(TRAINING_DEVICE_TAG, "")
         wall = float(metrics.get("summary/wall_seconds", math.nan))
         # Trainings logged before device-hours were recorded: derive them from the device tag.
         hours = metrics.get("summary/device_hours", device_hours(wall, device_count(device)))
         return cls(
-            run.info.run_id,
+            run_id,
             wall,
             device,
             float(hours),
@@ -63,26 +64,26 @@ class TrainingCost:
         )
 
 
-def training_costs(client: Any, run_ids: list[str]) -> dict[str, TrainingCost]:
-    """The cost of each training run that still exists (a deleted one is left out)."""
+def training_costs(tracker: Tracker, run_ids: list[str]) -> dict[str, TrainingCost]:
+    """The cost of each training run that still exists (a deleted one, or one in another store
+    after a merge, has no cost to show and is left out)."""
     out: dict[str, TrainingCost] = {}
     for run_id in sorted({r for r in run_ids if r}):
-        try:
-            out[run_id] = TrainingCost.from_run(client.get_run(run_id))
-        except Exception:  # deleted or in another store (merged cells): no cost to show
-            continue
+        found = tracker.run_summary(run_id)
+        if found is not None:
+            out[run_id] = TrainingCost.from_run(run_id, *found)
     return out
 
 
-def row_costs(client: Any, runs: pd.DataFrame, per_object: pd.DataFrame) -> pd.DataFrame:
+def row_costs(tracker: Tracker, runs: pd.DataFrame, per_object: pd.DataFrame) -> pd.DataFrame:
     """Per variant: test-time seconds per successfully completed object (over all its cells),
     and the mean cost of its trainings (one per seed; NaN for methods that do not train)."""
     ok = per_object[per_object["status"] == "ok"]
     seconds = ok.groupby("variant")["seconds"].mean() if "seconds" in ok else pd.Series(dtype=float)
     ids = runs.get("training_run_id", pd.Series("", index=runs.index)).fillna("")
-    costs = training_costs(client, ids.tolist())
+    costs = training_costs(tracker, ids.tolist())
     rows = []
-    for variant, g in runs.assign(_tr=ids).groupby("variant.key"):
+    for variant, g in runs.assign(_tr=ids).groupby("variant_key"):
         trained = [costs[r] for r in sorted(set(g["_tr"])) if r in costs]
         row: dict[str, Any] = {
             "variant": variant,

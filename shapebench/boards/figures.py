@@ -21,15 +21,13 @@ import numpy as np
 import pandas as pd
 
 if TYPE_CHECKING:
-    from shapebench.boards.leaderboard import Board
+    from shapebench.boards.board import Board
 
 #: Bootstrap resamples behind a confidence band, and the band's level.
 BOOTSTRAP = 2000
 LEVEL = 0.95
 #: The context size the Pareto figure compares at, when the table has it.
 PARETO_CONTEXT = 50
-#: ``shapebench.kind`` of the MLflow run that holds a table's leaderboard, figures and report.
-BOARD_KIND = "leaderboard"
 
 
 def bootstrap_band(values: np.ndarray, seed: int = 0) -> tuple[float, float]:
@@ -259,37 +257,9 @@ def write_board_figures(board: Board, md: Path) -> list[Path]:
     return written
 
 
-def board_run(tracker: Any, board: Board) -> str:
-    """The MLflow run that holds this table's leaderboard files, figures and report (one per
-    experiment, frame and metric; rebuilt tables overwrite its artifacts), created once."""
-    name = f"leaderboard {board.dataset}/{board.split} ({board.frame}, {board.metric})"
-    found = tracker.client.search_runs(
-        [board.experiment_id],
-        filter_string=f"tags.`shapebench.kind` = '{BOARD_KIND}' and "
-        f"tags.`board.frame` = '{board.frame}' and tags.`board.metric` = '{board.metric}'",
-        max_results=1,
-    )
-    if found:
-        return found[0].info.run_id
-    run = tracker.client.create_run(
-        board.experiment_id,
-        run_name=name,
-        tags={
-            "shapebench.kind": BOARD_KIND,
-            "board.frame": board.frame,
-            "board.metric": board.metric,
-            "dataset": board.dataset,
-            "split": board.split,
-        },
-    )
-    tracker.client.set_terminated(run.info.run_id)
-    return run.info.run_id
-
-
 def log_board_artifacts(tracker: Any, board: Board, paths: Sequence[Path]) -> str:
     """Log ``paths`` (leaderboard, figures, report) to the table's run; return its id."""
-    run_id = board_run(tracker, board)
-    for path in paths:
-        tracker.client.log_artifact(run_id, str(path))
-    tracker.client.set_tag(run_id, "board.fingerprint", board.fingerprint)
-    return run_id
+    from shapebench.store.presentation import log_board_figures
+
+    heading = (board.dataset, board.split, board.frame, board.metric)
+    return log_board_figures(tracker, board.experiment_id, heading, board.fingerprint, paths)

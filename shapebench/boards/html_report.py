@@ -36,7 +36,8 @@ import pandas as pd
 from shapebench import __version__
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
-from shapebench.boards.leaderboard import Board, Row, board_path, build_board, splits_with_runs
+from shapebench.boards.board import Board, Row
+from shapebench.boards.leaderboard import board_path, build_board, splits_with_runs
 from shapebench.config import Settings
 from shapebench.store.tracking import Tracker, experiment_name
 
@@ -87,39 +88,39 @@ def _picture_runs(board: Board) -> pd.DataFrame:
     """The cell runs the grids are drawn from: per (row, context size), the lowest seed."""
     runs = board.runs
     if runs is None or runs.empty:
-        return pd.DataFrame(columns=["run_id", "variant.key", "context_size", "seed"])
-    return runs.sort_values("seed").drop_duplicates(["variant.key", "context_size"])
+        return pd.DataFrame(columns=["run_id", "variant_key", "context_size", "seed"])
+    return runs.sort_values("seed").drop_duplicates(["variant_key", "context_size"])
 
 
 class Artifacts:
     """Reads a run's artifacts: straight from the folder when the store is local (the embedded
     workspace), else downloaded; MLflow's download costs ~80 ms a file even for local files."""
 
-    def __init__(self, client: Any, run_id: str, dst: Path) -> None:
+    def __init__(self, tracker: Tracker, run_id: str, dst: Path) -> None:
         from urllib.parse import urlparse
         from urllib.request import url2pathname
 
-        self.client, self.run_id, self.dst = client, run_id, dst
-        uri = client.get_run(run_id).info.artifact_uri
+        self.tracker, self.run_id, self.dst = tracker, run_id, dst
+        uri = tracker.artifact_uri(run_id)
         parsed = urlparse(uri)
         self.local = Path(url2pathname(parsed.path)) if parsed.scheme in ("", "file") else None
 
     def path(self, name: str) -> Path:
         if self.local is not None and (self.local / name).exists():
             return self.local / name
-        return Path(self.client.download_artifacts(self.run_id, name, str(self.dst)))
+        return self.tracker.download_artifact(self.run_id, name, self.dst)
 
     def names(self, folder: str) -> list[str]:
         if self.local is not None and (self.local / folder).is_dir():
             return sorted(f"{folder}/{p.name}" for p in (self.local / folder).iterdir())
-        return [a.path for a in self.client.list_artifacts(self.run_id, folder)]
+        return self.tracker.list_artifacts(self.run_id, folder)
 
 
-def _cell_pictures(client: Any, run_id: str, dst: Path) -> dict[str, dict[str, np.ndarray]]:
+def _cell_pictures(tracker: Tracker, run_id: str, dst: Path) -> dict[str, dict[str, np.ndarray]]:
     """Object id stem -> arrays of the pictures a cell logged (``pictures/*.npz``); for cells
     logged before pictures existed, the completed ``.ply`` clouds and their contexts."""
     out: dict[str, dict[str, np.ndarray]] = {}
-    store = Artifacts(client, run_id, dst)
+    store = Artifacts(tracker, run_id, dst)
     if store.names("pictures"):
         folder = store.path("pictures")
         for npz in sorted(folder.glob("*.npz")):
@@ -160,8 +161,8 @@ def _grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
         for i, run in enumerate(_picture_runs(board).to_dict("records")):
             dst = Path(tmp) / str(i)
             dst.mkdir()
-            key = (labels.get(run["variant.key"], run["_label"]), int(run["context_size"]))
-            cells[key] = _cell_pictures(tracker.client, run["run_id"], dst)
+            key = (labels.get(run["variant_key"], run["_label"]), int(run["context_size"]))
+            cells[key] = _cell_pictures(tracker, run["run_id"], dst)
     objects: dict[str, int] = {}
     for pictures in cells.values():
         for stem in pictures:
@@ -374,9 +375,9 @@ def _winners(board: Board) -> str:
 
 def _provenance(board: Board) -> str:
     runs = board.runs.copy() if board.runs is not None else pd.DataFrame()
-    if {"plugin.distribution", "plugin.version"} <= set(runs.columns):
+    if {"plugin_distribution", "plugin_version"} <= set(runs.columns):
         runs["_plugin"] = (
-            runs["plugin.distribution"].fillna("") + " " + runs["plugin.version"].fillna("")
+            runs["plugin_distribution"].fillna("") + " " + runs["plugin_version"].fillna("")
         ).str.strip()
 
     def used(col: str) -> str:
@@ -396,8 +397,8 @@ def _provenance(board: Board) -> str:
         f"<dt>dataset</dt><dd>{_e(board.dataset)} / {_e(board.split)}, fingerprint "
         f"<code>{_e(board.fingerprint)}</code>"
         + (f", data root <code>{_e(board.data_root)}</code>" if board.data_root else "")
-        + f"; versions {used('dataset.version')}</dd>"
-        f"<dt>shapebench that computed the runs</dt><dd>{used('shapebench.version')}</dd>"
+        + f"; versions {used('dataset_version')}</dd>"
+        f"<dt>shapebench that computed the runs</dt><dd>{used('shapebench_version')}</dd>"
         f"<dt>git commits of the runs</dt><dd>{used('git_commit')}</dd>"
         f"<dt>plugins</dt><dd>{used('_plugin')}</dd>"
         f"<dt>MLflow experiment</dt><dd><code>{_e(experiment_name(board.dataset, board.split))}"

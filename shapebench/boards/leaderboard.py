@@ -19,7 +19,6 @@ import json
 import shlex
 import sys
 import tempfile
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -31,58 +30,11 @@ from shapebench.api.metric import MetricCard
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
 from shapebench.api.types import EVAL_SPLITS
 from shapebench.boards import stats as board_stats
+from shapebench.boards.board import Board, Row
 from shapebench.boards.paper import PAPER_METHOD_ORDER, paper_table
 from shapebench.config import Settings
-from shapebench.store.records import CellRecord
-from shapebench.store.tracking import CELL_KIND, Tracker, experiment_name
-
-
-@dataclass
-class Row:
-    """One leaderboard row: a variant and how to print it."""
-
-    variant: str
-    label: str
-    method: str
-    display: str
-    overrides: dict
-    code: str = ""
-    checkpoint: str = ""
-    #: The run seeds whose cells the row pools (every (object, seed) pair is one sample).
-    seeds: tuple[int, ...] = ()
-    #: (seed, checkpoint key) of each seed's training, in seed order (the seed is part of the
-    #: key); seeds whose runs name no checkpoint are left out.
-    checkpoints: tuple[tuple[int, str], ...] = ()
-
-
-@dataclass
-class Board:
-    dataset: str
-    split: str
-    metric: str
-    card: str
-    reference: str  # the reference row's label
-    contexts: list[int]
-    rows: list[Row]
-    raw: pd.DataFrame  # board_stats.raw_table, one row per (variant, context)
-    normalized: pd.DataFrame | None
-    significance: pd.DataFrame
-    note: str
-    paper: pd.DataFrame
-    experiment_id: str
-    fingerprint: str
-    data_root: str = ""
-    frame: str = DEFAULT_FRAME
-    protocol: str = ""
-    left_out: list[str] = field(default_factory=list)
-    #: Per (variant, context, seed, object): the value under the failure rule (``scored``, at
-    #: the metric's own scale: multiply by ``scale``) and test-time ``seconds``.
-    scored: pd.DataFrame | None = None
-    scale: float = 1.0
-    #: Per variant: training and evaluation cost (:func:`shapebench.boards.cost.row_costs`).
-    costs: pd.DataFrame | None = None
-    #: The table's cell runs (one row per run, tags as columns), for provenance.
-    runs: pd.DataFrame | None = None
+from shapebench.store.records import card_column
+from shapebench.store.tracking import Tracker, experiment_name
 
 
 def _card_text(tag: str) -> str:
@@ -93,20 +45,14 @@ def _card_text(tag: str) -> str:
 
 
 def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
-    runs = tracker.client.search_runs(
-        [exp_id],
-        filter_string=f"tags.`shapebench.kind` = '{CELL_KIND}' and attributes.status = 'FINISHED'",
-        order_by=["attributes.start_time DESC"],
-        max_results=50000,
-    )
     # Cells are read through their record (shapebench.store.records), the same code that wrote them.
     rows = [
-        {"run_id": r.info.run_id, "start": r.info.start_time, **CellRecord.from_run(r).row()}
-        for r in runs
+        {"run_id": run_id, "start": start, **record.row()}
+        for run_id, start, record in tracker.finished_cells(exp_id)
     ]
     table = pd.DataFrame(rows)
-    if "variant.key" in table:  # runs logged before variant keys have none (see _select_runs)
-        table["variant.key"] = table["variant.key"].replace("", np.nan)
+    if "variant_key" in table:  # runs logged before variant keys have none (see _select_runs)
+        table["variant_key"] = table["variant_key"].replace("", np.nan)
     return table
 
 
@@ -116,10 +62,10 @@ def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFra
         for i, run in enumerate(runs.to_dict("records")):
             dst = Path(tmp) / str(i)
             dst.mkdir()
-            path = tracker.client.download_artifacts(run["run_id"], "per_object.csv", str(dst))
+            path = tracker.download_artifact(run["run_id"], "per_object.csv", dst)
             table = pd.read_csv(path, keep_default_na=False, na_values=[""])
             table["value"] = table.get(metric, np.nan)
-            table["variant"] = run["variant.key"]
+            table["variant"] = run["variant_key"]
             table["label"] = run["_label"]
             table["context"] = int(run["context_size"])
             table["seed"] = int(run["seed"])
@@ -144,13 +90,13 @@ def _select_runs(
     seed), and (unless ``all_variants``) the newest variant per label. Returns them, the chosen
     fingerprint and what was left out, in words."""
     left_out: list[str] = []
-    legacy = runs["variant.key"].isna() if "variant.key" in runs else pd.Series(True, runs.index)
+    legacy = runs["variant_key"].isna() if "variant_key" in runs else pd.Series(True, runs.index)
     if legacy.any():
         left_out.append(
             f"{int(legacy.sum())} runs logged before variant keys were recorded (rerun them)"
         )
     runs = runs[~legacy].copy()
-    runs["_frame"] = _column(runs, "protocol.frame", DEFAULT_FRAME)
+    runs["_frame"] = _column(runs, "frame", DEFAULT_FRAME)
     other_frame = runs[runs["_frame"] != frame]
     if len(other_frame):
         frames = ", ".join(sorted(other_frame["_frame"].unique()))
@@ -158,7 +104,7 @@ def _select_runs(
     runs = runs[runs["_frame"] == frame]
     if runs.empty:
         return runs, "", left_out
-    versions = runs.groupby("dataset.fingerprint")["start"].max().sort_values(ascending=False)
+    versions = runs.groupby("fingerprint")["start"].max().sort_values(ascending=False)
     if data_version:
         matches = [v for v in versions.index if str(v).startswith(data_version)]
         if len(matches) != 1:
@@ -171,12 +117,12 @@ def _select_runs(
         fingerprint = matches[0]
     else:
         fingerprint = versions.index[0]
-    others = runs[runs["dataset.fingerprint"] != fingerprint]
+    others = runs[runs["fingerprint"] != fingerprint]
     if len(others):
-        counts = others.groupby("dataset.fingerprint").size()
+        counts = others.groupby("fingerprint").size()
         roots = (
-            others.groupby("dataset.fingerprint")["dataset.data_root"].first()
-            if ("dataset.data_root" in others)
+            others.groupby("fingerprint")["data_root"].first()
+            if ("data_root" in others)
             else pd.Series(dtype=str)
         )
         listed = "; ".join(
@@ -184,20 +130,20 @@ def _select_runs(
             for fp, n in counts.items()
         )
         left_out.append(f"runs on other data versions: {listed} (--data-version FINGERPRINT)")
-    runs = runs[runs["dataset.fingerprint"] == fingerprint]
-    runs = runs.drop_duplicates(subset=["variant.key", "context_size", "seed"], keep="first")
-    runs["_label"] = _column(runs, "variant.label", "")
+    runs = runs[runs["fingerprint"] == fingerprint]
+    runs = runs.drop_duplicates(subset=["variant_key", "context_size", "seed"], keep="first")
+    runs["_label"] = _column(runs, "variant_label", "")
     runs.loc[runs["_label"] == "", "_label"] = runs["method"]
     newest = runs.groupby("_label")["start"].transform("max")
-    variant_newest = runs.groupby("variant.key")["start"].transform("max")
+    variant_newest = runs.groupby("variant_key")["start"].transform("max")
     older = variant_newest < newest  # an older variant under a label a newer one uses
     if older.any():
         if all_variants:
             runs.loc[older, "_label"] = (
-                runs.loc[older, "_label"] + "#" + runs.loc[older, "variant.key"].str[:6]
+                runs.loc[older, "_label"] + "#" + runs.loc[older, "variant_key"].str[:6]
             )
         else:
-            n_var = runs.loc[older, "variant.key"].nunique()
+            n_var = runs.loc[older, "variant_key"].nunique()
             left_out.append(
                 f"{n_var} older variant(s) sharing a label with a newer one (code, checkpoint "
                 "or version changed; --all-variants shows them)"
@@ -231,10 +177,10 @@ def _seeds_text(seeds: tuple[int, ...]) -> str:
 
 def _rows(runs: pd.DataFrame) -> list[Row]:
     rows = []
-    for key, g in runs.groupby("variant.key"):
+    for key, g in runs.groupby("variant_key"):
         first = g.sort_values("start").iloc[-1]
-        overrides = json.loads(first.get("variant.overrides") or "{}")
-        display = first.get("method.display_name") or first["method"]
+        overrides = json.loads(first.get("variant_overrides") or "{}")
+        display = first.get("display_name") or first["method"]
         if overrides.get("+normals"):  # never under the paper's row name
             display = f"{display} + test-time normals"
         seeds, checkpoints = _seeds_and_checkpoints(g)
@@ -245,7 +191,7 @@ def _rows(runs: pd.DataFrame) -> list[Row]:
                 first["method"],
                 display,
                 overrides,
-                _text(first.get("method.code")),
+                _text(first.get("method_code")),
                 _text(first.get("checkpoint_key")),
                 seeds,
                 checkpoints,
@@ -280,23 +226,26 @@ def build_board(
         return None
     if metric is None:
         metric = _default_metric(runs)
-    crashed_tag = "shapebench.metric_errors"
-    if crashed_tag in runs:
-        crashed = runs[crashed_tag].fillna("").map(lambda t: metric in t.split(","))
+    if "metric_errors" in runs:
+        crashed = runs["metric_errors"].fillna("").map(lambda t: metric in t.split(","))
         if crashed.any():
             left_out.append(
                 f"{int(crashed.sum())} runs in which {metric} raised on some object (fix the "
                 "metric and rerun: those cells are computed again)"
             )
             runs = runs[~crashed]
-            if runs.empty or f"card.{metric}" not in runs or runs[f"card.{metric}"].isna().all():
+            if (
+                runs.empty
+                or card_column(metric) not in runs
+                or runs[card_column(metric)].isna().all()
+            ):
                 raise ShapebenchError(
                     f"{metric} raised on some object in every run of {dataset}-{split} that "
                     "computed it",
                     "see the reasons under the run's summary (shapebench --debug run ... shows "
                     "tracebacks); fix the metric and rerun: those cells are computed again",
                 )
-    card_col = f"card.{metric}"
+    card_col = card_column(metric)
     if card_col not in runs or runs[card_col].isna().all():
         raise ShapebenchError(
             f"no run of {dataset}-{split} recorded metric {metric!r}", "pick another with --metric"
@@ -331,7 +280,7 @@ def build_board(
         )
     else:
         normalized = board_stats.normalized_table(scored, ref_row.variant)
-    root = runs["dataset.data_root"].dropna().iloc[0] if "dataset.data_root" in runs else ""
+    root = runs["data_root"].dropna().iloc[0] if "data_root" in runs else ""
     protocol = (
         "contexts carry points only"
         if not any(r.overrides.get("+normals") for r in rows)
@@ -360,7 +309,7 @@ def build_board(
         left_out,
         scored,
         scale,
-        row_costs(tracker.client, runs, scored),
+        row_costs(tracker, runs, scored),
         runs,
     )
 
@@ -695,7 +644,7 @@ def splits_with_runs(tracker: Tracker, dataset: str) -> list[str]:
     """The splits of ``dataset`` that have an experiment (the leaderboard's and the report's
     default), in the order the dataset declares them, undeclared ones after, by name."""
     prefix = f"{dataset}-"
-    names = [e.name for e in tracker.client.search_experiments() if e.name.startswith(prefix)]
+    names = tracker.experiment_names(prefix)
     found = {n[len(prefix) :] for n in names} - {"train"}
     order = declared_splits(dataset)
     return sorted(found, key=lambda s: (order.index(s) if s in order else len(order), s))

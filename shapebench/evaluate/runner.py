@@ -32,23 +32,12 @@ from shapebench.api.types import Completion, Context, ObjectData, ObjectRef
 from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.registry.variant import Variant
+from shapebench.store import presentation
 from shapebench.store.provenance import git_commit
-from shapebench.store.records import EVAL_POINTS_ACTUAL_TAG, METRIC_ERRORS_TAG, CellRecord
-from shapebench.store.tracking import PARENT_KIND, Tracker, experiment_name, flatten
+from shapebench.store.records import CellRecord
+from shapebench.store.tracking import Tracker, experiment_name, flatten
 
 #: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
-RUN_COLORS = (
-    "#1f77b4",
-    "#ff7f0e",
-    "#2ca02c",
-    "#d62728",
-    "#9467bd",
-    "#8c564b",
-    "#e377c2",
-    "#7f7f7f",
-    "#bcbd22",
-    "#17becf",
-)
 EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluate.pictures.PICTURES_PER_CELL)
 TOP_REASONS = 3  # distinct failure reasons printed per cell
 #: Per-object column prefix holding the error of a metric that raised on that object.
@@ -218,21 +207,6 @@ class ObjectCache:
         if isinstance(item, ObjectLoadError):
             raise item
         return item
-
-
-def _note(lines: list[str], limit: int = 7900) -> str:
-    """A run description from markdown lines, within MLflow's 8000 characters for a tag."""
-    text = "\n".join(lines)
-    if len(text) <= limit:
-        return text
-    return text[: text.rfind("\n", 0, limit - 80)] + "\n\n(truncated: `shapebench runs` lists all)"
-
-
-def _pm_text(metrics: dict[str, float], metric: str, scale: float) -> str:
-    mean = metrics.get(f"{metric}.mean")
-    if mean is None:
-        return "-"
-    return f"{mean * scale:.3f} ± {metrics.get(f'{metric}.std', 0.0) * scale:.3f}"
 
 
 def _progress(total: int, desc: str, quiet: bool):
@@ -454,7 +428,8 @@ class Runner:
         """Compute the pending cells of a split, each under a claim (a lock per cell key): a cell
         another process is computing is left to it and its result read back at the end; a claim
         whose process died is free again (the kernel drops its lock). The parent run gets the
-        metrics of every cell of the split, ``cached`` ones included (:meth:`_finish_parent`)."""
+        metrics of every cell of the split, ``cached`` ones included
+        (:func:`shapebench.store.presentation.finish_parent`)."""
         from shapebench.store.locks import try_lock, wait_lock
         from shapebench.store.tracking import cell_lock_path
 
@@ -502,7 +477,7 @@ class Runner:
                     key,
                 )
             )
-            self._describe_cell(plan, split, refs, results[-1])
+            self._describe_cell(plan, split, results[-1])
 
         settings = self.tracker.settings
         try:
@@ -528,7 +503,8 @@ class Runner:
             if parent_lock is not None:
                 parent_lock.release()
         if parent is not None:
-            self._finish_parent(plan, parent, split, [*cached, *results])
+            cells = [*cached, *results]
+            presentation.finish_parent(self.tracker, parent, self._heading(plan, split), cells)
             self.tracker.end(parent)
         return sorted(results, key=lambda r: (r.seed, r.context_size))
 
@@ -548,54 +524,27 @@ class Runner:
         )
         lock = try_lock(cell_lock_path(self.tracker.settings, "parent-" + parent_key))
         if lock is not None:
-            self.tracker.abandon_stale(exp_id, parent_key, tag="shapebench.parent_key")
-        variant = plan.variant
-        parent = self.tracker.start_run(
-            exp_id,
-            self._run_name(plan, f"on {plan.dataset.name}/{split}"),
-            {
-                "shapebench.parent_key": parent_key,
-                "shapebench.kind": PARENT_KIND,
-                "method": plan.method.name,
-                "dataset": plan.dataset.name,
-                "split": split,
-                "variant.key": variant.key if variant else "",
-                "variant.label": self._label(plan),
-                "protocol.frame": plan.protocol.frame,
-                "mlflow.runColor": self._variant_color(exp_id, self._label(plan)),
-            },
-        )
-        self._log_dataset(plan, split, parent)
+            presentation.abandon_stale_parents(self.tracker, exp_id, parent_key)
         metric = self._primary(plan)
-        self.tracker.describe_experiment(
-            exp_id,
-            f"shapebench evaluations on {plan.dataset.name}/{split}: a parent run per method "
-            "variant (its metrics are logged with step = context size, so the chart view "
-            "draws one line per variant), a child run per context size and seed.",
-            [f"{metric}.mean", f"{metric}.std", "failures", "seconds_per_object"],
-        )
+        columns = [f"{metric}.mean", f"{metric}.std", "failures", "seconds_per_object"]
+        heading = self._heading(plan, split)
+        parent = presentation.start_parent(self.tracker, exp_id, heading, parent_key, columns)
+        self._log_dataset(plan, split, parent)
         return parent, lock
 
-    def _variant_color(self, exp_id: str, label: str) -> str:
-        """The chart color of a variant's parent runs: the one its earlier parents have, else
-        the next of a palette. MLflow's own choice hashes the run id, and two variants of one
-        chart often got the same color."""
-        parents = self.tracker.client.search_runs(
-            [exp_id], f"tags.`shapebench.kind` = '{PARENT_KIND}'", max_results=1000
+    def _heading(self, plan: RunPlan, split: str) -> presentation.RunHeading:
+        """How the runs of ``plan`` on ``split`` are named and described in the UI."""
+        return presentation.RunHeading(
+            label=self._label(plan),
+            method=plan.method.name,
+            dataset=plan.dataset.name,
+            split=split,
+            variant_key=plan.variant.key if plan.variant else "",
+            frame=plan.protocol.frame,
+            metric=self._primary(plan),
+            training_run_id=str(plan.checkpoint.get("run_id") or ""),
+            force=plan.force,
         )
-        labels: list[str] = []
-        for run in sorted(parents, key=lambda r: r.info.start_time):
-            tags = run.data.tags
-            if tags.get("variant.label") == label and tags.get("mlflow.runColor"):
-                return tags["mlflow.runColor"]
-            if tags.get("variant.label") and tags["variant.label"] not in labels:
-                labels.append(tags["variant.label"])
-        return RUN_COLORS[len(labels) % len(RUN_COLORS)]
-
-    def _run_name(self, plan: RunPlan, what: str) -> str:
-        """A run's name: the variant's label (``gauss[sigma=0.05]``) and what the run holds; a
-        ``--force`` recomputation says so, so it is not taken for the run it replaces."""
-        return f"{self._label(plan)} {what}" + (" (forced rerun)" if plan.force else "")
 
     @staticmethod
     def _primary(plan: RunPlan) -> str:
@@ -615,80 +564,13 @@ class Runner:
             split,
         )
 
-    def _training_link(self, plan: RunPlan) -> str:
-        """A markdown link to the training run of this plan's checkpoint ("" when none)."""
-        run_id = str(plan.checkpoint.get("run_id") or "")
-        if not run_id:
-            return ""
-        try:
-            exp = self.tracker.client.get_run(run_id).info.experiment_id
-        except Exception:  # a checkpoint trained in another store: name the run, no link
-            return f"training run `{run_id}` (not in this store)"
-        return f"[training run {run_id[:8]}](#/experiments/{exp}/runs/{run_id})"
-
-    def _describe_cell(self, plan: RunPlan, split: str, refs: list, result: CellResult) -> None:
+    def _describe_cell(self, plan: RunPlan, split: str, result: CellResult) -> None:
         """The cell's summary as its MLflow note (shown on the run's page), and the evaluated
         objects as its dataset input."""
         if result.skipped:
             return
-        metric = self._primary(plan)
-        scale = result.scale(metric)
-        m = result.metrics
-        lines = [
-            f"**{self._label(plan)}** on {plan.dataset.name}/{split}, "
-            f"{result.context_size} context points, seed {result.seed}",
-            "",
-            f"| metric | mean ± std (x{scale:g}) | objects | failed |",
-            "|---|---|---|---|",
-            f"| {metric} | {_pm_text(m, metric, scale)} | {result.n_objects} "
-            f"| {result.n_objects - result.n_ok} |",
-        ]
-        link = self._training_link(plan)
-        if link:
-            lines += ["", f"Checkpoint: {link}."]
-        self.tracker.client.set_tag(result.run_id, "mlflow.note.content", _note(lines))
+        presentation.describe_cell(self.tracker, self._heading(plan, split), result)
         self._log_dataset(plan, split, result.run_id)
-
-    def _finish_parent(
-        self, plan: RunPlan, parent: str, split: str, cells: list[CellResult]
-    ) -> None:
-        """The parent's metrics: each cell's, averaged over seeds, logged with step = context
-        size (one line per variant in the UI's chart view); its note, the summary table."""
-        by_size: dict[int, list[CellResult]] = {}
-        for cell in cells:
-            by_size.setdefault(cell.context_size, []).append(cell)
-        for size in sorted(by_size):
-            keys = set().union(*(c.metrics for c in by_size[size]))
-            mean = {
-                k: float(np.mean([c.metrics[k] for c in by_size[size] if k in c.metrics]))
-                for k in keys
-            }
-            self.tracker.log_metrics(parent, mean, step=size)
-        metric = self._primary(plan)
-        scale = cells[0].scale(metric) if cells else 1.0
-        lines = [
-            f"**{self._label(plan)}** on {plan.dataset.name}/{split}: {metric} x{scale:g}, "
-            "mean ± std over objects",
-            "",
-            "| context | seed | objects | failed | mean ± std | run |",
-            "|---|---|---|---|---|---|",
-        ]
-        for c in sorted(cells, key=lambda c: (c.context_size, c.seed)):
-            lines.append(
-                f"| {c.context_size} | {c.seed} | {c.n_objects} | "
-                f"{c.n_objects - c.n_ok} | {_pm_text(c.metrics, metric, scale)} | "
-                f"[{c.run_id[:8]}](#/experiments/{c.experiment_id}/runs/{c.run_id})"
-                f"{' (cached)' if c.skipped else ''} |"
-            )
-        link = self._training_link(plan)
-        if link:
-            lines += ["", f"Checkpoint: {link}."]
-        # The cards of the cells' metrics, so the parent's values are read at the right scale.
-        from shapebench.store.records import CARD_PREFIX
-
-        cards = {CARD_PREFIX + m: card for c in cells for m, card in c.cards.items()}
-        for key, value in {**cards, "mlflow.note.content": _note(lines)}.items():
-            self.tracker.client.set_tag(parent, key, value)
 
     def _run_cell(
         self, plan, method, split, refs, cache, store, exp_id, parent, seed, size, cfg, key
@@ -697,7 +579,10 @@ class Runner:
         tr.abandon_stale(exp_id, key)
         record = self._record(plan, split, size, seed, key, cfg)
         run_id = tr.start_run(
-            exp_id, self._run_name(plan, f"k={size} seed={seed}"), record.to_tags(), parent
+            exp_id,
+            self._heading(plan, split).run_name(f"k={size} seed={seed}"),
+            record.to_tags(),
+            parent,
         )
         try:
             rows, contexts, examples = [], [], []
@@ -745,13 +630,16 @@ class Runner:
                         bar.update()
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
-            self._check_gt_points(plan, run_id, table)
-            crashed = metric_errors(table)
-            if crashed:  # not finished for these metrics: the next run computes the cell again
-                tr.client.set_tag(run_id, METRIC_ERRORS_TAG, ",".join(crashed))
+            # Metrics that raised: the cell is not finished for them, the next run computes it.
+            presentation.record_outcome(
+                tr,
+                run_id,
+                contexts_digest(contexts),
+                metric_errors(table),
+                self._check_gt_points(plan, table),
+            )
             tr.log_params(run_id, flatten("", cfg))
             tr.log_metrics(run_id, summary, step=size)
-            tr.client.set_tag(run_id, "contexts.sha256", contexts_digest(contexts))
             self._log_artifacts(
                 run_id,
                 table,
@@ -765,7 +653,7 @@ class Runner:
             tr.end(run_id, "KILLED")
             raise
         tr.end(run_id)
-        uri = tr.client.get_run(run_id).info.artifact_uri.rstrip("/") + "/per_object.csv"
+        uri = tr.artifact_uri(run_id, "per_object.csv")
         errors = distinct_errors(table)
         return CellResult(
             split,
@@ -781,24 +669,24 @@ class Runner:
             cfg["metrics"],
         )
 
-    def _check_gt_points(self, plan: RunPlan, run_id: str, table: pd.DataFrame) -> None:
+    def _check_gt_points(self, plan: RunPlan, table: pd.DataFrame) -> int:
         """The card promises ``gt_points`` evaluation points per object; a dataset that has
-        fewer for some object (a sparse RGB-D fusion) is said so, and the real number recorded
-        on the run (:attr:`CellRecord.eval_points_actual`, column ``gt_points`` of the
-        table)."""
+        fewer for some object (a sparse RGB-D fusion) is said so, and the fewest returned, to be
+        recorded on the run (:attr:`CellRecord.eval_points_actual`; the real counts are column
+        ``gt_points`` of the table); 0 when every object has enough."""
         promised = int(getattr(plan.dataset.options, "gt_points", 0) or 0)
         if not promised or "gt_points" not in table or table["gt_points"].isna().all():
-            return
+            return 0
         fewest = int(table["gt_points"].min())
         if fewest >= promised:
-            return
+            return 0
         short = int((table["gt_points"] < promised).sum())
-        self.tracker.client.set_tag(run_id, EVAL_POINTS_ACTUAL_TAG, str(fewest))
         self.echo(
             f"  warning: {short} object(s) of {plan.dataset.name} have fewer ground-truth "
             f"points than the {promised} the metric card states (fewest: {fewest}); "
             "the real counts are in per_object.csv"
         )
+        return fewest
 
     @staticmethod
     def _label(plan: RunPlan) -> str:
@@ -808,9 +696,7 @@ class Runner:
         """A finished cell reused under a new ``--label`` takes that label (results are equal)."""
         if plan.variant is None:
             return
-        run = self.tracker.client.get_run(run_id)
-        if CellRecord.from_run(run).variant_label != plan.variant.label:
-            self.tracker.client.set_tag(run_id, "variant.label", plan.variant.label)
+        presentation.relabel(self.tracker, run_id, plan.variant.label)
 
     def _announce(self, plan: RunPlan, split: str, refs: list[ObjectRef]) -> None:
         """What is evaluated, and why objects were left out, before any work."""
@@ -878,7 +764,7 @@ class Runner:
                 if all(c.normals is not None for c in contexts):  # given to the method
                     arrays["normals"] = np.stack([c.normals for c in contexts])
                 np.savez_compressed(tmpdir / "contexts.npz", **arrays)
-            self.tracker.client.log_artifacts(run_id, str(tmpdir))
+            self.tracker.log_artifacts(run_id, tmpdir)
             if examples:
                 pic_dir = tmpdir / "pictures"
                 pic_dir.mkdir()
@@ -900,10 +786,9 @@ class Runner:
                         f"  warning: could not draw the pictures of this cell "
                         f"({type(exc).__name__}: {exc})"
                     )
-                self.tracker.client.log_artifacts(run_id, str(pic_dir), "pictures")
-                self.tracker.client.log_metric(
-                    run_id, "pictures_seconds", time.perf_counter() - start
-                )
+                self.tracker.log_artifacts(run_id, pic_dir, "pictures")
+                seconds = time.perf_counter() - start
+                self.tracker.log_metrics(run_id, {"pictures_seconds": seconds})
             if examples or spare:
                 ex_dir = tmpdir / "completions"
                 ex_dir.mkdir()
@@ -919,4 +804,4 @@ class Runner:
                             points=completion.points,
                             spread=completion.cache["spread"],
                         )
-                self.tracker.client.log_artifacts(run_id, str(ex_dir), "completions")
+                self.tracker.log_artifacts(run_id, ex_dir, "completions")

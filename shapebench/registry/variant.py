@@ -25,13 +25,6 @@ class Variant:
     label: str
     overrides: dict[str, Any]
 
-    def tags(self) -> dict[str, str]:
-        return {
-            "variant.key": self.key,
-            "variant.label": self.label,
-            "variant.overrides": json.dumps(self.overrides, sort_keys=True, default=str),
-        }
-
 
 def _fmt(value: Any) -> str:
     if isinstance(value, float):

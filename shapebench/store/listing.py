@@ -16,8 +16,9 @@ from typing import Any
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
-from shapebench.store.records import CellRecord
-from shapebench.store.tracking import CELL_KIND, PARENT_KIND, TRAINING_KIND, run_url
+from shapebench.store import records as rec
+from shapebench.store.records import CELL_KIND, PARENT_KIND, TRAINING_KIND, CellRecord
+from shapebench.store.tracking import run_url
 
 KINDS = (CELL_KIND, PARENT_KIND, TRAINING_KIND)
 STATUSES = ("FINISHED", "RUNNING", "FAILED", "KILLED")
@@ -104,10 +105,10 @@ def _when(ms: int | None) -> str:
 def _row(run: Any, experiments: dict[str, str], primary: dict[tuple, str]) -> RunRow:
     tags = run.data.tags
     metrics = run.data.metrics
-    kind = tags.get("shapebench.kind", "")
+    kind = tags.get(rec.KIND_TAG, "")
     info = run.info
     record = CellRecord.from_tags(tags)
-    dataset = tags.get("dataset", "")
+    dataset = tags.get(rec.DATASET_TAG, "")
     cards = record.cards
     if kind == PARENT_KIND and not cards:  # a parent of an older version: no cards
         cards = {k.rsplit(".", 1)[0]: "" for k in metrics if k.endswith(".mean")}
@@ -117,7 +118,7 @@ def _row(run: Any, experiments: dict[str, str], primary: dict[tuple, str]) -> Ru
     metric = primary[key] if kind != TRAINING_KIND else ""
     value = metrics.get(f"{metric}.mean") if metric else None
     scale = _scale(record, metric) if metric else 1.0
-    variant = tags.get("variant.label") or tags.get("method", "")
+    variant = tags.get(rec.VARIANT_LABEL_TAG) or tags.get(rec.METHOD_TAG, "")
     return RunRow(
         run_id=info.run_id,
         kind=kind,
@@ -126,9 +127,9 @@ def _row(run: Any, experiments: dict[str, str], primary: dict[tuple, str]) -> Ru
         experiment_id=info.experiment_id,
         status=info.status,
         variant=variant,
-        method=tags.get("method", ""),
+        method=tags.get(rec.METHOD_TAG, ""),
         dataset=dataset,
-        split=tags.get("split", ""),
+        split=tags.get(rec.SPLIT_TAG, ""),
         context_size=record.context_size if kind == CELL_KIND else None,
         seed=record.seed if kind == CELL_KIND else None,
         metric=metric,
@@ -161,12 +162,16 @@ def list_runs(
         return []
     clauses = []
     if kind != "all":
-        clauses.append(f"tags.`shapebench.kind` = '{kind}'")
-    for tag, value in (("method", method), ("dataset", dataset), ("split", split)):
+        clauses.append(f"tags.`{rec.KIND_TAG}` = '{kind}'")
+    for tag, value in (
+        (rec.METHOD_TAG, method),
+        (rec.DATASET_TAG, dataset),
+        (rec.SPLIT_TAG, split),
+    ):
         if value:
             clauses.append(f"tags.`{tag}` = '{_quote(value)}'")
     if context_size is not None:
-        clauses.append(f"tags.`context_size` = '{int(context_size)}'")
+        clauses.append(f"tags.`{rec.CONTEXT_SIZE_TAG}` = '{int(context_size)}'")
     if status:
         clauses.append(f"attributes.status = '{status.upper()}'")
     runs = client.search_runs(
@@ -179,7 +184,7 @@ def list_runs(
     rows = [
         _row(r, experiments, primary)
         for r in runs
-        if kind != "all" or r.data.tags.get("shapebench.kind") in KINDS
+        if kind != "all" or r.data.tags.get(rec.KIND_TAG) in KINDS
     ]
     return sorted(
         rows,
@@ -338,11 +343,11 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
     experiments = _experiments(client)
     children = client.search_runs(
         [info.experiment_id],
-        filter_string=f"tags.`mlflow.parentRunId` = '{info.run_id}'",
+        filter_string=f"tags.`{rec.PARENT_RUN_TAG}` = '{info.run_id}'",
         max_results=1000,
     )
     base = ui_base(settings)
-    training = run.data.tags.get("training_run_id", "")
+    training = run.data.tags.get(rec.TRAINING_RUN_TAG, "")
     training_url = ""
     if training:
         from mlflow.exceptions import MlflowException
@@ -355,7 +360,7 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
     return RunDetails(
         run_id=info.run_id,
         name=info.run_name or "",
-        kind=run.data.tags.get("shapebench.kind", ""),
+        kind=run.data.tags.get(rec.KIND_TAG, ""),
         experiment=experiments.get(info.experiment_id, info.experiment_id),
         experiment_id=info.experiment_id,
         status=info.status,
@@ -365,7 +370,7 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
         params=dict(sorted(run.data.params.items())),
         metrics=dict(sorted(run.data.metrics.items())),
         artifacts=_artifacts(client, info.run_id),
-        parent_id=run.data.tags.get("mlflow.parentRunId", ""),
+        parent_id=run.data.tags.get(rec.PARENT_RUN_TAG, ""),
         children=sorted(c.info.run_id for c in children),
         url=run_url(base, info.experiment_id, info.run_id),
         training_url=training_url,
@@ -374,18 +379,18 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
 
 #: Tags ``show`` prints in its head, in this order (the rest follow under "tags").
 _HEAD_TAGS = [
-    "variant.label",
-    "method",
-    "dataset",
-    "split",
-    "context_size",
-    "seed",
-    "protocol.frame",
-    "shapebench.cell_key",
-    "checkpoint_key",
-    "training_run_id",
-    "mlflow.source.git.commit",
-    "shapebench.version",
+    rec.VARIANT_LABEL_TAG,
+    rec.METHOD_TAG,
+    rec.DATASET_TAG,
+    rec.SPLIT_TAG,
+    rec.CONTEXT_SIZE_TAG,
+    rec.SEED_TAG,
+    rec.FRAME_TAG,
+    rec.CELL_KEY_TAG,
+    rec.CHECKPOINT_KEY_TAG,
+    rec.TRAINING_RUN_TAG,
+    rec.GIT_COMMIT_TAG,
+    rec.SHAPEBENCH_VERSION_TAG,
 ]
 
 
@@ -422,7 +427,7 @@ def format_details(d: RunDetails, all_tags: bool = False) -> list[str]:
     extra = {k: v for k, v in d.tags.items() if k not in _HEAD_TAGS}
     if all_tags:
         lines.append("tags:")
-        lines += [f"  {k}: {v}" for k, v in extra.items() if k != "mlflow.note.content"]
+        lines += [f"  {k}: {v}" for k, v in extra.items() if k != rec.NOTE_TAG]
         lines.append("params:")
         lines += [f"  {k}: {v}" for k, v in d.params.items()]
     else:

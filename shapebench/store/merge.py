@@ -31,16 +31,27 @@ from typing import Any
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import SCORE_RTOL, scores_agree
-from shapebench.store.records import CELL_KEY_TAG, KIND_TAG, TRAINING_RUN_TAG, CellRecord
-from shapebench.store.tracking import CELL_KIND, PARENT_KIND, TRAINING_KIND
+from shapebench.store.records import (
+    CELL_KEY_TAG,
+    CELL_KIND,
+    CHECKPOINT_KEY_TAG,
+    KIND_TAG,
+    MERGED_FROM_TAG,
+    PARENT_KEY_TAG,
+    PARENT_KIND,
+    PARENT_RUN_TAG,
+    TRAINING_KIND,
+    TRAINING_RUN_TAG,
+    CellRecord,
+)
 
 #: The tag that identifies each kind of run across stores.
 IDENTITY = {
     CELL_KIND: CELL_KEY_TAG,
-    TRAINING_KIND: "checkpoint_key",
-    PARENT_KIND: "shapebench.parent_key",
+    TRAINING_KIND: CHECKPOINT_KEY_TAG,
+    PARENT_KIND: PARENT_KEY_TAG,
 }
-MERGED_FROM = "shapebench.merged_from"
+MERGED_FROM = MERGED_FROM_TAG
 #: The order runs are merged in: trainings first (their experiment may come after the cells'),
 #: so that a copied cell can name its training's run in the target; parents before children.
 _ORDER = {TRAINING_KIND: 0, PARENT_KIND: 1}
@@ -138,7 +149,7 @@ def _merge_one(
                     report.disagreeing.append(key)
                 report.present[kind] = report.present.get(kind, 0) + 1
                 continue
-            parent = merged.get(run.data.tags.get("mlflow.parentRunId", ""))
+            parent = merged.get(run.data.tags.get(PARENT_RUN_TAG, ""))
             training = merged.get(run.data.tags.get(TRAINING_RUN_TAG, ""))
             merged[run.info.run_id] = _copy(
                 source, target, target_exp, run, source_uri, parent, training
@@ -192,10 +203,10 @@ def _copy(
 ) -> str:
     from mlflow.entities import Metric, Param
 
-    tags = {k: v for k, v in run.data.tags.items() if k != "mlflow.parentRunId"}
+    tags = {k: v for k, v in run.data.tags.items() if k != PARENT_RUN_TAG}
     tags[MERGED_FROM] = f"{source_uri}#{run.info.run_id}"
     if parent:
-        tags["mlflow.parentRunId"] = parent
+        tags[PARENT_RUN_TAG] = parent
     if training:
         tags[TRAINING_RUN_TAG] = training
     new = target.create_run(

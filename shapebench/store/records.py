@@ -9,7 +9,10 @@ way pytest pairs ``pytest_report_to_serializable`` with ``pytest_report_from_ser
 A new tag is added here, in both directions, or nowhere.
 
 The tag names are part of the store's format (a store written by an older shapebench is read by
-a newer one), so they do not change; :data:`FORMAT` is bumped when their meaning does.
+a newer one), so they do not change; :data:`FORMAT` is bumped when their meaning does. Every tag
+and run kind shapebench writes or reads is named in this module and nowhere else (a test reads
+the other modules for tag strings): the rest of the store imports these constants, and the rooms
+above the store never see a tag.
 """
 
 from __future__ import annotations
@@ -19,13 +22,67 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from shapebench.api.metric import MetricCard
-from shapebench.store.tracking import CELL_KIND
 
 #: Version of the tag format below.
 FORMAT = "1"
+FORMAT_TAG = "shapebench.format"
 
+# -- run kinds: every run shapebench starts says which it is --------------------------------------
 KIND_TAG = "shapebench.kind"
+#: One method variant x dataset x split x context size x seed.
+CELL_KIND = "cell"
+#: A variant's new cells on one split, their metrics logged with step = context size.
+PARENT_KIND = "parent"
+#: A training of a checkpoint key.
+TRAINING_KIND = "training"
+#: The figures of one leaderboard (dataset, split, frame, metric).
+BOARD_KIND = "leaderboard"
+
+# -- identities -------------------------------------------------------------------------------
 CELL_KEY_TAG = "shapebench.cell_key"
+PARENT_KEY_TAG = "shapebench.parent_key"
+CHECKPOINT_KEY_TAG = "checkpoint_key"
+#: Where a merged run came from: ``<source store>#<run id>``.
+MERGED_FROM_TAG = "shapebench.merged_from"
+METHOD_TAG = "method"
+DATASET_TAG = "dataset"
+SPLIT_TAG = "split"
+CONTEXT_SIZE_TAG = "context_size"
+SEED_TAG = "seed"
+FRAME_TAG = "protocol.frame"
+VARIANT_KEY_TAG = "variant.key"
+VARIANT_LABEL_TAG = "variant.label"
+#: The digest of the context points a cell gave its method (same for every method).
+CONTEXTS_DIGEST_TAG = "contexts.sha256"
+#: A training that continued from a checkpoint.
+RESUMED_TAG = "resumed"
+BOARD_FRAME_TAG = "board.frame"
+BOARD_METRIC_TAG = "board.metric"
+BOARD_FINGERPRINT_TAG = "board.fingerprint"
+
+# -- MLflow's own tags, which its UI reads ------------------------------------------------------
+PARENT_RUN_TAG = "mlflow.parentRunId"
+NOTE_TAG = "mlflow.note.content"
+RUN_COLOR_TAG = "mlflow.runColor"
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+#: The experiment tag the MLflow UI reads a shared view from (``?viewStateShareKey=...``).
+VIEW_TAG_PREFIX = "mlflow.sharedViewState."
+USER_TAG = "mlflow.user"
+SOURCE_TYPE_TAG = "mlflow.source.type"
+SOURCE_NAME_TAG = "mlflow.source.name"
+GIT_COMMIT_TAG = "mlflow.source.git.commit"
+#: The context of a dataset input (an input tag, not a run tag).
+DATASET_CONTEXT_TAG = "mlflow.data.context"
+
+# -- provenance: where and with what a run ran ---------------------------------------------------
+SHAPEBENCH_VERSION_TAG = "shapebench.version"
+GIT_DIRTY_TAG = "git.dirty"
+VERSIONS_PREFIX = "versions."
+HOST_PLATFORM_TAG = "host.platform"
+HOST_CPUS_TAG = "host.cpus"
+HOST_CPU_TAG = "host.cpu"
+HOST_MEMORY_TAG = "host.memory_gb"
+HOST_GPUS_TAG = "host.gpus"
 #: The tag of a cell naming the training run its checkpoint came from.
 TRAINING_RUN_TAG = "training_run_id"
 METRIC_ERRORS_TAG = "shapebench.metric_errors"
@@ -39,23 +96,23 @@ CARD_PREFIX = "card."
 #: Record field -> tag name, for the plain string fields (the others are handled explicitly).
 _TAGS = {
     "cell_key": CELL_KEY_TAG,
-    "shapebench_version": "shapebench.version",
-    "method": "method",
+    "shapebench_version": SHAPEBENCH_VERSION_TAG,
+    "method": METHOD_TAG,
     "display_name": "method.display_name",
     "method_code": "method.code",
-    "dataset": "dataset",
+    "dataset": DATASET_TAG,
     "dataset_version": "dataset.version",
     "fingerprint": "dataset.fingerprint",
     "data_root": "dataset.data_root",
-    "split": "split",
+    "split": SPLIT_TAG,
     "plugin_distribution": "plugin.distribution",
     "plugin_version": "plugin.version",
     "git_commit": "git_commit",
-    "checkpoint_key": "checkpoint_key",
+    "checkpoint_key": CHECKPOINT_KEY_TAG,
     "training_run_id": TRAINING_RUN_TAG,
-    "frame": "protocol.frame",
-    "variant_key": "variant.key",
-    "variant_label": "variant.label",
+    "frame": FRAME_TAG,
+    "variant_key": VARIANT_KEY_TAG,
+    "variant_label": VARIANT_LABEL_TAG,
 }
 
 
@@ -96,13 +153,13 @@ class CellRecord:
     eval_points_actual: int = 0
 
     def to_tags(self) -> dict[str, str]:
-        tags = {KIND_TAG: CELL_KIND, "shapebench.format": FORMAT}
+        tags = {KIND_TAG: CELL_KIND, FORMAT_TAG: FORMAT}
         for name, tag in _TAGS.items():
             value = getattr(self, name)
             if value or name in ("data_root",):
                 tags[tag] = str(value)
-        tags["context_size"] = str(self.context_size)
-        tags["seed"] = str(self.seed)
+        tags[CONTEXT_SIZE_TAG] = str(self.context_size)
+        tags[SEED_TAG] = str(self.seed)
         tags["method.trains"] = str(self.trains)
         tags["protocol.context_normals"] = str(self.context_normals)
         if self.variant_key:
@@ -121,8 +178,8 @@ class CellRecord:
     def from_tags(cls, tags: dict[str, str]) -> CellRecord:
         """The record of a cell run's tags; missing tags (older stores) take the defaults."""
         values: dict[str, Any] = {name: tags.get(tag, "") for name, tag in _TAGS.items()}
-        values["context_size"] = int(tags.get("context_size") or 0)
-        values["seed"] = int(tags.get("seed") or 0)
+        values["context_size"] = int(tags.get(CONTEXT_SIZE_TAG) or 0)
+        values["seed"] = int(tags.get(SEED_TAG) or 0)
         values["trains"] = tags.get("method.trains") == "True"
         values["context_normals"] = tags.get("protocol.context_normals") == "True"
         try:
@@ -154,17 +211,51 @@ class CellRecord:
             return None
 
     def row(self) -> dict[str, Any]:
-        """The record as a flat dict keyed by tag name, with typed values (a leaderboard row)."""
-        out: dict[str, Any] = {tag: getattr(self, name) for name, tag in _TAGS.items()}
+        """The record as a flat dict keyed by field name, with typed values (a leaderboard row):
+        the overrides as JSON text, the crashed metrics comma-separated, and each card in a
+        column of its own (:func:`card_column`)."""
+        out: dict[str, Any] = {name: getattr(self, name) for name in _TAGS}
         out.update(
             {
                 "context_size": self.context_size,
                 "seed": self.seed,
-                "variant.overrides": json.dumps(
+                "trains": self.trains,
+                "context_normals": self.context_normals,
+                "variant_overrides": json.dumps(
                     self.variant_overrides, sort_keys=True, default=str
                 ),
-                METRIC_ERRORS_TAG: ",".join(self.metric_errors),
+                "metric_errors": ",".join(self.metric_errors),
+                "eval_points_actual": self.eval_points_actual,
             }
         )
-        out.update({CARD_PREFIX + m: c for m, c in self.cards.items()})
+        out.update({card_column(m): c for m, c in self.cards.items()})
         return out
+
+
+def card_column(metric: str) -> str:
+    """The column of :meth:`CellRecord.row` that holds ``metric``'s card."""
+    return CARD_PREFIX + metric
+
+
+def training_tags(
+    method: str,
+    dataset: str,
+    key: str,
+    resumed: bool = False,
+    reference: str = "",
+    device: str = "",
+) -> dict[str, str]:
+    """The tags of a training run: of checkpoint ``key``, resumed from a checkpoint or not; a
+    shipped reference checkpoint names its origin and the device it was trained on."""
+    tags = {
+        KIND_TAG: TRAINING_KIND,
+        METHOD_TAG: method,
+        DATASET_TAG: dataset,
+        CHECKPOINT_KEY_TAG: key,
+    }
+    if resumed:
+        tags[RESUMED_TAG] = "true"
+    if reference:
+        tags[REFERENCE_TAG] = reference
+        tags[TRAINING_DEVICE_TAG] = device
+    return tags

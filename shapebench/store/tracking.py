@@ -29,10 +29,7 @@ from typing import Any
 
 from shapebench.api.errors import TrackingError
 from shapebench.config import Settings
-
-CELL_KIND = "cell"
-PARENT_KIND = "parent"
-TRAINING_KIND = "training"
+from shapebench.store import records as rec
 
 
 def experiment_name(dataset: str, split: str) -> str:
@@ -49,8 +46,6 @@ def training_experiment_name(dataset: str) -> str:
 #: Experiment names that held trainings in older stores (never a split of the leaderboards).
 LEGACY_TRAINING_SUFFIX = "-train"
 
-#: The experiment tag the MLflow UI reads a shared view from (``?viewStateShareKey=...``).
-VIEW_TAG_PREFIX = "mlflow.sharedViewState."
 #: shapebench's view of an evaluation experiment: the metric columns shown in the runs table.
 VIEW_KEY = "shapebench"
 
@@ -119,7 +114,7 @@ class Tracker:
             # The UI opens a "custom model development" experiment on its runs table and charts
             # (without the tag it guesses, and may open the GenAI traces views).
             return self.client.create_experiment(
-                name, artifact_location=location, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND}
+                name, artifact_location=location, tags={rec.EXPERIMENT_KIND_TAG: EXPERIMENT_KIND}
             )
         except MlflowException:
             # Another process created it between our lookup and our creation: use theirs.
@@ -132,9 +127,9 @@ class Tracker:
         """The experiment's description (``mlflow.note.content``, shown above its runs) and,
         given the metrics of its cells, shapebench's view of it: the runs table with those
         metrics as columns (see :func:`view_state`), opened by :func:`experiment_url`."""
-        tags = {"mlflow.note.content": note}
+        tags = {rec.NOTE_TAG: note}
         if metrics:
-            tags[VIEW_TAG_PREFIX + VIEW_KEY] = json.dumps(view_state(metrics))
+            tags[rec.VIEW_TAG_PREFIX + VIEW_KEY] = json.dumps(view_state(metrics))
         exp = self.client.get_experiment(exp_id)
         for key, value in tags.items():
             if exp.tags.get(key) != value:  # written once per change, not per run
@@ -144,20 +139,18 @@ class Tracker:
         finished = "attributes.status = 'FINISHED'"
         runs = self.client.search_runs(
             [exp_id],
-            filter_string=f"tags.`shapebench.cell_key` = '{key}' and {finished}",
+            filter_string=f"tags.`{rec.CELL_KEY_TAG}` = '{key}' and {finished}",
             order_by=["attributes.start_time DESC"],
             max_results=1,
         )
         if not runs:
             return None
-        from shapebench.store.records import CellRecord
-
-        record = CellRecord.from_run(runs[0])
+        record = rec.CellRecord.from_run(runs[0])
         return FinishedCell(
             runs[0].info.run_id, dict(runs[0].data.metrics), frozenset(record.metric_errors), record
         )
 
-    def abandon_stale(self, exp_id: str, key: str, tag: str = "shapebench.cell_key") -> int:
+    def abandon_stale(self, exp_id: str, key: str, tag: str = rec.CELL_KEY_TAG) -> int:
         """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""
         runs = self.client.search_runs(
             [exp_id],
@@ -178,7 +171,7 @@ class Tracker:
         # the result came from (library versions, hardware), then shapebench's.
         all_tags = {**run_context_tags(), **tags}
         if parent_id:
-            all_tags["mlflow.parentRunId"] = parent_id
+            all_tags[rec.PARENT_RUN_TAG] = parent_id
         run = self.client.create_run(exp_id, run_name=name, tags=all_tags)
         return run.info.run_id
 
@@ -217,14 +210,83 @@ class Tracker:
             source=json.dumps(source, default=str),
             profile=json.dumps(profile, default=str),
         )
-        tags = [InputTag(key="mlflow.data.context", value=context)]
+        tags = [InputTag(key=rec.DATASET_CONTEXT_TAG, value=context)]
         self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset, tags=tags)])
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)
 
+    # -- reading and annotating runs, for the rooms above the store --------------------------
 
-EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+    def set_tags(self, run_id: str, tags: dict[str, str]) -> None:
+        """Tags built by :mod:`shapebench.store.records` (or this room) on a run."""
+        for key, value in tags.items():
+            self.client.set_tag(run_id, key, value)
+
+    def set_note(self, run_id: str, markdown: str) -> None:
+        """The run's description, shown on its page in the UI."""
+        self.client.set_tag(run_id, rec.NOTE_TAG, markdown)
+
+    def tags(self, run_id: str) -> dict[str, str]:
+        return dict(self.client.get_run(run_id).data.tags)
+
+    def experiment_of(self, run_id: str) -> str | None:
+        """The experiment id of ``run_id``, or None when the run is not in this store."""
+        try:
+            return self.client.get_run(run_id).info.experiment_id
+        except Exception:  # a checkpoint trained in another store, a deleted run
+            return None
+
+    def artifact_uri(self, run_id: str, name: str = "") -> str:
+        uri = self.client.get_run(run_id).info.artifact_uri.rstrip("/")
+        return f"{uri}/{name}" if name else uri
+
+    def log_artifacts(self, run_id: str, folder: Path, path: str | None = None) -> None:
+        """Every file of ``folder`` as artifacts of the run (under ``path``)."""
+        self.client.log_artifacts(run_id, str(folder), path)
+
+    def log_artifact(self, run_id: str, file: Path) -> None:
+        self.client.log_artifact(run_id, str(file))
+
+    def download_artifact(self, run_id: str, name: str, dst: Path) -> Path:
+        return Path(self.client.download_artifacts(run_id, name, str(dst)))
+
+    def list_artifacts(self, run_id: str, folder: str) -> list[str]:
+        return [a.path for a in self.client.list_artifacts(run_id, folder)]
+
+    def experiment_names(self, prefix: str = "") -> list[str]:
+        return [e.name for e in self.client.search_experiments() if e.name.startswith(prefix)]
+
+    def finished_cells(self, exp_id: str) -> list[tuple[str, int, rec.CellRecord]]:
+        """(run id, start time, record) of every finished cell of an experiment, newest first."""
+        runs = self.client.search_runs(
+            [exp_id],
+            filter_string=(
+                f"tags.`{rec.KIND_TAG}` = '{rec.CELL_KIND}' and attributes.status = 'FINISHED'"
+            ),
+            order_by=["attributes.start_time DESC"],
+            max_results=50000,
+        )
+        return [(r.info.run_id, r.info.start_time, rec.CellRecord.from_run(r)) for r in runs]
+
+    def runs_of_kind(self, exp_id: str, kind: str, tags: dict[str, str] | None = None) -> list:
+        """The runs of ``kind`` (:mod:`~shapebench.store.records`) in an experiment whose tags
+        equal ``tags``, oldest first, as ``(run id, tags)``."""
+        clauses = [f"tags.`{rec.KIND_TAG}` = '{kind}'"]
+        clauses += [f"tags.`{k}` = '{v}'" for k, v in (tags or {}).items()]
+        runs = self.client.search_runs([exp_id], " and ".join(clauses), max_results=1000)
+        runs = sorted(runs, key=lambda r: r.info.start_time)
+        return [(r.info.run_id, dict(r.data.tags)) for r in runs]
+
+    def run_summary(self, run_id: str) -> tuple[dict[str, float], dict[str, str]] | None:
+        """The metrics and tags of a run, or None when it is not in this store."""
+        try:
+            run = self.client.get_run(run_id)
+        except Exception:  # deleted or in another store (merged cells)
+            return None
+        return dict(run.data.metrics), dict(run.data.tags)
+
+
 EXPERIMENT_KIND = "custom_model_development"
 
 
@@ -303,31 +365,31 @@ def run_context_tags() -> dict[str, str]:
 
     commit = git_commit()
     tags = {
-        "mlflow.user": _safe(getpass.getuser),
-        "mlflow.source.type": "LOCAL",
-        "mlflow.source.name": " ".join(["shapebench", *sys.argv[1:]])[:500],
-        "shapebench.version": __version__,
-        "versions.python": platform.python_version(),
-        "host.platform": platform.platform(),
-        "host.cpus": str(os.cpu_count() or 0),
+        rec.USER_TAG: _safe(getpass.getuser),
+        rec.SOURCE_TYPE_TAG: "LOCAL",
+        rec.SOURCE_NAME_TAG: " ".join(["shapebench", *sys.argv[1:]])[:500],
+        rec.SHAPEBENCH_VERSION_TAG: __version__,
+        rec.VERSIONS_PREFIX + "python": platform.python_version(),
+        rec.HOST_PLATFORM_TAG: platform.platform(),
+        rec.HOST_CPUS_TAG: str(os.cpu_count() or 0),
     }
     if commit != "unknown":
-        tags["mlflow.source.git.commit"] = commit.removesuffix("-dirty")
-        tags["git.dirty"] = str(commit.endswith("-dirty"))
+        tags[rec.GIT_COMMIT_TAG] = commit.removesuffix("-dirty")
+        tags[rec.GIT_DIRTY_TAG] = str(commit.endswith("-dirty"))
     # Versions from the installed metadata: importing torch here would cost seconds per command.
     for dist in ("mlflow", "numpy", "torch", "pytorch-lightning", "trimesh"):
         version = _dist_version(dist)
         if version:
-            tags[f"versions.{dist}"] = version
+            tags[rec.VERSIONS_PREFIX + dist] = version
     cpu = _cpu_model()
     if cpu:
-        tags["host.cpu"] = cpu
+        tags[rec.HOST_CPU_TAG] = cpu
     memory = _memory_gb()
     if memory:
-        tags["host.memory_gb"] = f"{memory:.0f}"
+        tags[rec.HOST_MEMORY_TAG] = f"{memory:.0f}"
     gpus = _gpu_names()
     if gpus:
-        tags["host.gpus"] = gpus
+        tags[rec.HOST_GPUS_TAG] = gpus
     return tags
 
 
@@ -446,7 +508,5 @@ def lightning_logger(tracking_uri: str, run_id: str) -> Any:
 
 def log_training_summary(logger: Any, metrics: dict[str, float], step: int, device: str) -> None:
     """A finished training's ``summary/*`` metrics and its device tag, through its logger."""
-    from shapebench.store.records import TRAINING_DEVICE_TAG
-
     logger.log_metrics(metrics, step=step)
-    logger.experiment.set_tag(logger.run_id, TRAINING_DEVICE_TAG, device)
+    logger.experiment.set_tag(logger.run_id, rec.TRAINING_DEVICE_TAG, device)

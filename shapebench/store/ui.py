@@ -24,7 +24,8 @@ from types import FrameType
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
-from shapebench.store.tracking import VIEW_KEY, VIEW_TAG_PREFIX, experiment_url
+from shapebench.store.records import VIEW_TAG_PREFIX
+from shapebench.store.tracking import VIEW_KEY, experiment_url
 
 
 def check_port(host: str, port: int) -> None:

@@ -33,8 +33,8 @@ from shapebench.api.method import TrainerOptions, TrainingContext
 from shapebench.config import Settings
 from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
-from shapebench.store.records import REFERENCE_TAG
-from shapebench.store.tracking import TRAINING_KIND, Tracker, flatten, training_experiment_name
+from shapebench.store.records import CHECKPOINT_KEY_TAG, training_tags
+from shapebench.store.tracking import Tracker, flatten, training_experiment_name
 
 if TYPE_CHECKING:
     from shapebench.train.references import Reference
@@ -236,15 +236,9 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
             "curves; the evaluations that use a checkpoint link to its run in their description.",
         )
         # We hold the key's lock: a RUNNING training of this key was left by a killed process.
-        tracker.abandon_stale(exp, key, tag="checkpoint_key")
-        tags = {
-            "shapebench.kind": TRAINING_KIND,
-            "method": method.name,
-            "dataset": dataset.name,
-            "checkpoint_key": key,
-        }
-        if (workdir / LAST).exists():
-            tags["resumed"] = "true"
+        tracker.abandon_stale(exp, key, tag=CHECKPOINT_KEY_TAG)
+        resumed = (workdir / LAST).exists()
+        tags = training_tags(method.name, dataset.name, key, resumed=resumed)
         label = method.name + (
             f" epochs={method.options.epochs}" if hasattr(method.options, "epochs") else ""
         )
@@ -348,14 +342,8 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
     path = install(reference, workdir)
     tracker = Tracker(settings)
     exp = tracker.experiment_id(training_experiment_name(dataset.name))
-    tags = {
-        "shapebench.kind": TRAINING_KIND,
-        "method": method.name,
-        "dataset": dataset.name,
-        "checkpoint_key": key,
-        REFERENCE_TAG: reference.origin,
-        "training_device": str(summary.get("device", "")),
-    }
+    device = str(summary.get("device", ""))
+    tags = training_tags(method.name, dataset.name, key, reference=reference.origin, device=device)
     run_id = tracker.start_run(
         exp, f"reference {method.name} on {dataset.name} seed={trainer.seed}", tags
     )
@@ -373,9 +361,8 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
     )
     tracker.log_metrics(run_id, metrics, step=int(summary.get("optimizer_steps", 0)))
     described = json.dumps(info, indent=1, sort_keys=True)
-    tracker.client.set_tag(
+    tracker.set_note(
         run_id,
-        "mlflow.note.content",
         "Reference checkpoint shipped with shapebench, not trained here."
         f"\n\n```json\n{described}\n```",
     )

@@ -1,0 +1,61 @@
+"""The model of a leaderboard: its rows and the tables built for one dataset split (no MLflow,
+no drawing): what :mod:`~shapebench.boards.leaderboard` builds and the figures and the report
+read."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import pandas as pd
+
+from shapebench.api.protocol import DEFAULT_FRAME
+
+
+@dataclass
+class Row:
+    """One leaderboard row: a variant and how to print it."""
+
+    variant: str
+    label: str
+    method: str
+    display: str
+    overrides: dict
+    code: str = ""
+    checkpoint: str = ""
+    #: The run seeds whose cells the row pools (every (object, seed) pair is one sample).
+    seeds: tuple[int, ...] = ()
+    #: (seed, checkpoint key) of each seed's training, in seed order (the seed is part of the
+    #: key); seeds whose runs name no checkpoint are left out.
+    checkpoints: tuple[tuple[int, str], ...] = ()
+
+
+@dataclass
+class Board:
+    """One leaderboard: a dataset split, one metric card and frame, a row per variant."""
+
+    dataset: str
+    split: str
+    metric: str
+    card: str
+    reference: str  # the reference row's label
+    contexts: list[int]
+    rows: list[Row]
+    raw: pd.DataFrame  # board_stats.raw_table, one row per (variant, context)
+    normalized: pd.DataFrame | None
+    significance: pd.DataFrame
+    note: str
+    paper: pd.DataFrame
+    experiment_id: str
+    fingerprint: str
+    data_root: str = ""
+    frame: str = DEFAULT_FRAME
+    protocol: str = ""
+    left_out: list[str] = field(default_factory=list)
+    #: Per (variant, context, seed, object): the value under the failure rule (``scored``, at
+    #: the metric's own scale: multiply by ``scale``) and test-time ``seconds``.
+    scored: pd.DataFrame | None = None
+    scale: float = 1.0
+    #: Per variant: training and evaluation cost (:func:`shapebench.boards.cost.row_costs`).
+    costs: pd.DataFrame | None = None
+    #: The table's cell runs (one row per run, tags as columns), for provenance.
+    runs: pd.DataFrame | None = None

@@ -1,0 +1,144 @@
+"""The house's rules (docs/architecture.md), checked on the code as it stands: the layers and the
+MLflow contract of pyproject.toml through import-linter, no cycle between rooms, the store as the
+only place that names a tag or reaches the MLflow client, and no built-in plugin named by the
+core."""
+
+from __future__ import annotations
+
+import ast
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "shapebench"
+#: Modules that may sit directly in shapebench/ (the rest live in rooms).
+MAX_TOP_LEVEL_MODULES = 12
+BUILTIN_PLUGINS = (
+    "shapebench_synthetic",
+    "shapebench_meshes",
+    "shapebench_shapenet",
+    "shapebench_iclnuim",
+    "shapebench_gauss",
+    "shapebench_igr",
+    "shapebench_deepsdf",
+    "shapebench_msc",
+    "shapebench_pcn",
+    "shapebench_occnet",
+)
+
+
+def _sources(exclude: tuple[str, ...] = ()) -> list[Path]:
+    return [
+        p
+        for p in sorted(PACKAGE.rglob("*.py"))
+        if not any(p.relative_to(PACKAGE).as_posix().startswith(e) for e in exclude)
+    ]
+
+
+def _strings(path: Path) -> list[tuple[int, str]]:
+    """Every string constant of a module, f-string pieces included, with its line."""
+    tree = ast.parse(path.read_text())
+    docstrings = {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    return [
+        (node.lineno, node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and isinstance(node.value, str)
+        if id(node) not in docstrings
+    ]
+
+
+@pytest.mark.slow  # builds the whole import graph: ~5 s
+def test_the_layer_contracts_hold():
+    lint = shutil.which("lint-imports", path=str(Path(sys.executable).parent))
+    assert lint, "import-linter is part of the test extra: pip install -e '.[test]'"
+    done = subprocess.run([lint], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
+    assert "0 broken" in done.stdout
+
+
+def test_no_import_cycle_between_rooms_function_local_imports_included():
+    grimp = pytest.importorskip("grimp")
+    graph = grimp.build_graph("shapebench", include_external_packages=False)
+
+    def room(module: str) -> str:
+        parts = module.split(".")
+        return ".".join(parts[:2])
+
+    edges: dict[str, set[str]] = {}
+    for module in graph.modules:
+        for imported in graph.find_modules_directly_imported_by(module):
+            a, b = room(module), room(imported)
+            if a != b and imported.startswith("shapebench"):
+                edges.setdefault(a, set()).add(b)
+    # A cycle between two rooms shows as a room that reaches itself.
+    cycles = []
+    for start in edges:
+        seen, stack = set(), list(edges[start])
+        while stack:
+            node = stack.pop()
+            if node == start:
+                cycles.append(start)
+                break
+            if node not in seen:
+                seen.add(node)
+                stack.extend(edges.get(node, ()))
+    assert not cycles, f"rooms on an import cycle: {sorted(cycles)}"
+
+
+def test_the_top_level_holds_few_modules():
+    modules = sorted(p.name for p in PACKAGE.glob("*.py"))
+    assert len(modules) <= MAX_TOP_LEVEL_MODULES, modules
+
+
+def test_only_the_store_reaches_the_mlflow_client():
+    offenders = []
+    for path in _sources(exclude=("store/",)):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr == "client":
+                offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not offenders, "use a Tracker method (shapebench/store/tracking.py): " + str(offenders)
+
+
+def test_only_records_names_a_tag():
+    from shapebench.store import records
+
+    tags = {
+        value
+        for name, value in vars(records).items()
+        if name.endswith(("_TAG", "_PREFIX")) and isinstance(value, str)
+    }
+    # Plain words ("method", "split") are also column and option names: the namespaced tags,
+    # and the search filters that name a tag, are what must not be spelled outside records.
+    namespaced = {t for t in tags if "." in t}
+    offenders = []
+    for path in _sources(exclude=("store/records.py",)):
+        for line, text in _strings(path):
+            if text in namespaced or re.search(r"tags\.`[^`{]+`", text):
+                offenders.append(f"{path.relative_to(ROOT)}:{line}: {text!r}")
+    assert not offenders, offenders
+    # Every tag the records name is distinct: two constants for one tag would drift apart.
+    names = [v for k, v in vars(records).items() if k.endswith("_TAG")]
+    assert len(names) == len(set(names))
+
+
+def test_the_core_names_no_builtin_plugin():
+    offenders = []
+    for path in _sources():
+        for line, text in _strings(path):
+            if any(plugin in text for plugin in BUILTIN_PLUGINS):
+                offenders.append(f"{path.relative_to(ROOT)}:{line}")
+    assert not offenders, "a built-in declares what it needs itself (check_options): " + str(
+        offenders
+    )
