@@ -1,4 +1,4 @@
-from shapebench.cli.app import main
+from shapebench.cli import main
 
 if __name__ == "__main__":
     main()

@@ -362,6 +362,19 @@ def summarize(table: pd.DataFrame, metrics: list[Metric]) -> dict[str, float]:
     return out
 
 
+@dataclass(frozen=True)
+class SplitWork:
+    """One split of a plan being computed: what every cell of it shares."""
+
+    plan: RunPlan
+    method: Method
+    split: str
+    refs: list[ObjectRef]
+    cache: ObjectCache
+    store: ContextStore
+    exp_id: str
+
+
 class Runner:
     """Runs the cells of a :class:`RunPlan`, logging each to MLflow."""
 
@@ -409,9 +422,8 @@ class Runner:
             )
             if method is None:
                 method = make_method()
-            results += self._run_pending(
-                plan, method, split, refs, cache, store, exp_id, pending, cached
-            )
+            work = SplitWork(plan, method, split, refs, cache, store, exp_id)
+            results += self._run_pending(work, pending, cached)
         return results
 
     def finished(self, plan: RunPlan, exp_id: str, key: str):
@@ -424,7 +436,7 @@ class Runner:
             return None
         return done
 
-    def _run_pending(self, plan, method, split, refs, cache, store, exp_id, pending, cached=()):
+    def _run_pending(self, work: SplitWork, pending: list, cached=()) -> list[CellResult]:
         """Compute the pending cells of a split, each under a claim (a lock per cell key): a cell
         another process is computing is left to it and its result read back at the end; a claim
         whose process died is free again (the kernel drops its lock). The parent run gets the
@@ -433,6 +445,7 @@ class Runner:
         from shapebench.store.locks import try_lock, wait_lock
         from shapebench.store.tracking import cell_lock_path
 
+        plan, split, exp_id = work.plan, work.split, work.exp_id
         parent: str | None = None
         parent_lock = None
         results: list[CellResult] = []
@@ -461,22 +474,7 @@ class Runner:
                     )
                 )
                 return
-            results.append(
-                self._run_cell(
-                    plan,
-                    method,
-                    split,
-                    refs,
-                    cache,
-                    store,
-                    exp_id,
-                    start_parent(),
-                    seed,
-                    size,
-                    cfg,
-                    key,
-                )
-            )
+            results.append(self._run_cell(work, start_parent(), seed, size, cfg, key))
             self._describe_cell(plan, split, results[-1])
 
         settings = self.tracker.settings
@@ -573,8 +571,10 @@ class Runner:
         self._log_dataset(plan, split, result.run_id)
 
     def _run_cell(
-        self, plan, method, split, refs, cache, store, exp_id, parent, seed, size, cfg, key
+        self, work: SplitWork, parent: str, seed: int, size: int, cfg: dict, key: str
     ) -> CellResult:
+        plan, method, split, refs = work.plan, work.method, work.split, work.refs
+        cache, store, exp_id = work.cache, work.store, work.exp_id
         tr = self.tracker
         tr.abandon_stale(exp_id, key)
         record = self._record(plan, split, size, seed, key, cfg)

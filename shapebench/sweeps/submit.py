@@ -1,8 +1,13 @@
-"""``shapebench sweep --launcher slurm|submitit-local`` and ``sweep --status``: plan, submit,
-wait, report (the jobs themselves are in :mod:`shapebench.sweeps.cluster`)."""
+"""Launching a sweep: :class:`SweepLaunch` is one ``shapebench sweep`` (or ``run --launcher``)
+as plain data; :func:`start_sweep` submits it as cluster jobs or runs its local worker
+processes, :func:`run_inline` computes what is left in this process, :func:`show_status` reports
+(the jobs themselves are in :mod:`shapebench.sweeps.cluster`).
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,49 +32,114 @@ from shapebench.sweeps.plan import plan_sweep
 from shapebench.sweeps.spec import SweepSpec, sweep_methods
 from shapebench.train.training import trainer_options
 
+#: Launchers that submit jobs through submitit.
+CLUSTER_LAUNCHERS = ("slurm", "submitit-local")
 
-def _trainer_for_seed(settings: Settings, given: dict[str, Any]):
-    return lambda seed: trainer_options(settings, seed, **given)
+
+@dataclass(frozen=True)
+class SweepLaunch:
+    """One sweep to launch, as the command line (or a Python caller) gives it."""
+
+    spec: SweepSpec
+    sweep_file: Path
+    settings: Settings
+    #: inline, local, slurm or submitit-local.
+    launcher: str = "inline"
+    #: Worker processes (local), jobs at once (submitit-local).
+    jobs: int = 1
+    #: Trainer options given explicitly (``--devices 1``...), the rest from the profile.
+    trainer: dict[str, Any] = field(default_factory=dict)
+    #: Keys of the sweep file's launcher block overridden (``--slurm KEY=VALUE``).
+    overrides: dict[str, Any] = field(default_factory=dict)
+    force: bool = False
+    retrain: bool = False
+    quiet: bool = False
+    #: With slurm: wait for the jobs to end.
+    wait: bool = False
+    #: Cells to skip before this worker's first (local workers start at different cells).
+    worker: int = 0
+    #: Protocol given on the command line (jobs pass it on); None: the sweep file's.
+    frame: str | None = None
+    context_normals: bool | None = None
+
+    def trainer_for_seed(self) -> Callable[[int], Any]:
+        return lambda seed: trainer_options(self.settings, seed, **self.trainer)
 
 
-def show_status(
-    spec: SweepSpec,
-    settings: Settings,
-    given: dict[str, Any],
-    overrides: dict[str, Any],
-    launcher: str,
-) -> None:
+def start_sweep(launch: SweepLaunch, worker_argv: list[str]) -> bool:
+    """Hand ``launch`` to its launcher: submit it as cluster jobs (False: nothing is left to do
+    here), or run the local worker processes to the end (``worker_argv``: the ``sweep``
+    arguments they are started with). True when the caller computes the remaining cells inline,
+    with :func:`run_inline` (for the inline launcher: every cell)."""
+    if launch.launcher in CLUSTER_LAUNCHERS:
+        if launch.force or launch.retrain:
+            raise ShapebenchError(
+                "--force and --retrain cannot be split between jobs",
+                "run such a sweep with --launcher inline",
+            )
+        cluster_sweep(launch)
+        return False
+    if launch.launcher == "local":
+        from shapebench.sweeps.launchers import run_local
+
+        if launch.force or launch.retrain:
+            raise ShapebenchError(
+                "--force and --retrain cannot be split between workers",
+                "run such a sweep with --launcher inline",
+            )
+        if launch.jobs < 1:
+            raise ShapebenchError(f"--jobs must be at least 1, got {launch.jobs}")
+        log_dir = launch.settings.artifact_root.parent / "logs"
+        if run_local(worker_argv, launch.jobs, log_dir, click.echo):
+            click.secho("some workers failed; computing what they left here", fg="yellow")
+    return True
+
+
+def run_inline(
+    launch: SweepLaunch, on_error: Callable[[str, str, ShapebenchError], None]
+) -> Iterator[Any]:
+    """Compute the sweep's cells in this process, yielding each method x dataset outcome
+    (:class:`shapebench.evaluate.orchestrate.EvalOutcome`) as it finishes; ``on_error`` hears of
+    a method or dataset that cannot run (the rest of the sweep goes on)."""
+    from shapebench.sweeps.spec import run_sweep
+
+    yield from run_sweep(
+        launch.spec,
+        launch.settings,
+        launch.force,
+        launch.quiet,
+        launch.trainer_for_seed(),
+        on_error,
+        offset=launch.worker,
+        retrain=launch.retrain,
+    )
+
+
+def show_status(launch: SweepLaunch) -> None:
     """Print each cell's state; per-job stores are merged first, so finished means merged."""
-    cfg = launcher_config(spec.launcher, overrides, launcher)
+    spec, settings = launch.spec, launch.settings
+    cfg = launcher_config(spec.launcher, launch.overrides, launch.launcher)
     if cfg.tracking == "per-job":
         merge_job_stores(settings, click.echo)
-    plan = plan_sweep(spec, settings, _trainer_for_seed(settings, given))
+    plan = plan_sweep(spec, settings, launch.trainer_for_seed())
     manifest = read_manifest(manifest_path(settings, spec.name))
     print_status(sweep_status(plan, settings, manifest), plan, click.echo)
 
 
-def cluster_sweep(
-    spec: SweepSpec,
-    sweep_file: Path,
-    settings: Settings,
-    given: dict[str, Any],
-    overrides: dict[str, Any],
-    launcher: str,
-    jobs: int,
-    wait: bool,
-    frame: str | None,
-    context_normals: bool | None,
-) -> None:
+def cluster_sweep(launch: SweepLaunch) -> None:
     """Submit the sweep's missing trainings and cells; submitit-local (or ``--wait``) waits for
     them, merges per-job stores and prints the status."""
     import os
 
-    cfg = launcher_config(spec.launcher, overrides, launcher)
+    spec, settings, launcher, jobs = launch.spec, launch.settings, launch.launcher, launch.jobs
+    sweep_file, given = launch.sweep_file, launch.trainer
+
+    cfg = launcher_config(spec.launcher, launch.overrides, launcher)
     check_tracking(cfg, settings)
     per_job = cfg.tracking == "per-job"
     if per_job:
         merge_job_stores(settings, click.echo)
-    plan = plan_sweep(spec, settings, _trainer_for_seed(settings, given))
+    plan = plan_sweep(spec, settings, launch.trainer_for_seed())
     missing = plan.missing
     click.echo(
         f"sweep {spec.name}: {len(plan.cells)} cells, {len(plan.finished)} finished, "
@@ -91,8 +161,8 @@ def cluster_sweep(
         cache_dir=str(settings.cache_dir),
         workspace=str(settings.artifact_root.parent),
         trainer=given,
-        frame=frame,
-        context_normals=context_normals,
+        frame=launch.frame,
+        context_normals=launch.context_normals,
         per_job_store=per_job,
         threads=threads,
     )
@@ -100,7 +170,7 @@ def cluster_sweep(
     names = [m.name for m in sweep_methods(spec)]
     submitted = submit_plan(plan, ctx, cfg, names, folder, click.echo, jobs if local else 0)
     write_manifest(manifest_path(settings, spec.name), launcher, [s for s, _ in submitted])
-    if not (local or wait):
+    if not (local or launch.wait):
         click.echo(f"submitted {len(submitted)} jobs; logs under {folder}")
         click.echo(f"follow with: shapebench sweep {sweep_file} --status")
         return
@@ -108,7 +178,7 @@ def cluster_sweep(
     failed = wait_for([job for _, job in submitted], click.echo)
     if per_job:
         merge_job_stores(settings, click.echo)
-    plan = plan_sweep(spec, settings, _trainer_for_seed(settings, given))
+    plan = plan_sweep(spec, settings, launch.trainer_for_seed())
     print_status(
         sweep_status(plan, settings, read_manifest(manifest_path(settings, spec.name))),
         plan,

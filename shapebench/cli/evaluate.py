@@ -1,0 +1,391 @@
+"""``shapebench run``, ``sweep`` and ``train``: evaluate methods and train them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from shapebench.api.errors import ShapebenchError
+from shapebench.cli.app import (
+    DEFAULT_CONTEXTS,
+    _argv_after,
+    _exit_if_all_failed,
+    _int_list,
+    _parse,
+    _protocol,
+    _settings,
+    _trainer,
+    cli,
+    plugin_options,
+    protocol_options,
+    store_options,
+    trainer_options,
+)
+
+
+@cli.command()
+@click.option("--method", "-m", required=True, help="Method name (see 'shapebench methods').")
+@click.option("--dataset", "-d", required=True, help="Dataset name (see 'shapebench datasets').")
+@click.option(
+    "--split",
+    "splits",
+    default=None,
+    help="Comma-separated evaluation splits [default: trained,novel].",
+)
+@click.option(
+    "--contexts", default=DEFAULT_CONTEXTS, show_default=True, help="Comma-separated context sizes."
+)
+@click.option("--seeds", default="0", show_default=True, help="Comma-separated run seeds.")
+@click.option(
+    "--metric",
+    "metrics",
+    multiple=True,
+    help="Metrics to compute [default: every installed metric].",
+)
+@click.option(
+    "--checkpoint",
+    type=click.Path(exists=True),
+    default=None,
+    help="Use this checkpoint instead of training (trainable methods).",
+)
+@click.option(
+    "--samples",
+    type=int,
+    default=None,
+    metavar="K",
+    help="Also draw K shapes from the posterior (methods with one, e.g. msc); they are logged "
+    "with a per-point spread.",
+)
+@click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
+@click.option(
+    "--retrain",
+    is_flag=True,
+    help="Train locally even where shapebench ships a reference checkpoint of the "
+    "same key (the rows are then labelled weights=local).",
+)
+@click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
+@click.option(
+    "--label",
+    default=None,
+    help="Leaderboard row name for this variant [default: the method name with the options "
+    "that differ from the profile, e.g. gauss[sigma=0.05]].",
+)
+@click.option(
+    "--launcher",
+    type=click.Choice(["inline", "slurm", "submitit-local"]),
+    default="inline",
+    show_default=True,
+    help="slurm: submit the training and the cells as SLURM jobs (see sweep --help "
+    "and docs/cluster.md); submitit-local: the same jobs on this machine.",
+)
+@click.option(
+    "--slurm",
+    "slurm_opts",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="SLURM settings, as in a sweep file's launcher block (repeatable).",
+)
+@click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
+@protocol_options
+@plugin_options
+@trainer_options
+@store_options
+def run(
+    method,
+    dataset,
+    splits,
+    contexts,
+    seeds,
+    metrics,
+    checkpoint,
+    samples,
+    force,
+    retrain,
+    quiet,
+    label,
+    launcher,
+    slurm_opts,
+    wait,
+    frame,
+    context_normals,
+    method_opts,
+    dataset_opts,
+    data_root,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+    **trainer,
+) -> None:
+    """Evaluate METHOD on DATASET at every context size; log to MLflow; print a summary.
+
+    Cells (split x context size x seed) that already have a finished run with the same
+    resolved configuration (options, code, checkpoint, protocol) are skipped, so an
+    interrupted run resumes where it stopped. Exits with status 1 when every object of some
+    cell failed, after printing the most common reasons.
+
+    \b
+    Examples:
+      shapebench run --method gauss --dataset synthetic
+      shapebench run -m gauss -d synthetic --contexts 50,100 -O sigma=0.02 --quiet
+      shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
+      shapebench run -m gauss -d synthetic --frame unit-diameter   # the paper's scale
+      shapebench run -m msc -d synthetic --samples 4   # posterior samples, trains first
+      shapebench run -m igr -d shapenet --launcher slurm --slurm partition=gpu \\
+          --slurm tracking=per-job --devices 1 --accelerator gpu
+    """
+    from shapebench.cli.printing import print_summary
+    from shapebench.evaluate.orchestrate import EvalRequest, evaluate
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    req = EvalRequest(
+        method=method,
+        dataset=dataset,
+        splits=splits.split(",") if splits else None,
+        contexts=_int_list(contexts, "--contexts"),
+        seeds=_int_list(seeds, "--seeds"),
+        method_opts=_parse(method_opts, "-O") | ({"posterior_samples": samples} if samples else {}),
+        dataset_opts=_parse(dataset_opts, "-D"),
+        data_root=data_root,
+        metrics=list(metrics) or None,
+        checkpoint=checkpoint,
+        force=force,
+        quiet=quiet,
+        protocol=_protocol(frame, context_normals),
+        label=label,
+        retrain=retrain,
+    )
+    if launcher != "inline":
+        from shapebench.sweeps.spec import load_sweep
+        from shapebench.sweeps.submit import SweepLaunch, cluster_sweep, run_as_sweep
+
+        if checkpoint or force or retrain:
+            raise ShapebenchError("--checkpoint, --force and --retrain need --launcher inline")
+        sweep_file = run_as_sweep(req, settings)
+        click.echo(f"as a sweep of one method: {sweep_file}")
+        launch = SweepLaunch(
+            spec=load_sweep(sweep_file),
+            sweep_file=sweep_file,
+            settings=settings,
+            launcher=launcher,
+            trainer={k: v for k, v in trainer.items() if v is not None},
+            overrides=_parse(slurm_opts, "--slurm"),
+            wait=wait,
+        )
+        cluster_sweep(launch)
+        return
+    outcome = evaluate(req, settings, lambda seed: _trainer(settings, seed, **trainer))
+    print_summary(outcome, settings)
+    _exit_if_all_failed([outcome])
+
+
+@cli.command()
+@click.argument("sweep_file", type=click.Path(dir_okay=False))
+@click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
+@click.option(
+    "--retrain",
+    is_flag=True,
+    help="Train locally even where shapebench ships a reference checkpoint of the "
+    "same key (the rows are then labelled weights=local).",
+)
+@click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
+@click.option(
+    "--launcher",
+    type=click.Choice(["inline", "local", "slurm", "submitit-local"]),
+    default=None,
+    help="inline: every cell in this process [default, or the sweep file's launcher.name]; "
+    "local: in -j worker processes; slurm: as SLURM jobs through submitit; submitit-local: "
+    "the slurm launcher's jobs as processes on this machine.",
+)
+@click.option(
+    "--jobs",
+    "-j",
+    type=int,
+    default=2,
+    show_default=True,
+    help="Worker processes of --launcher local (jobs at once for submitit-local).",
+)
+@click.option(
+    "--slurm",
+    "slurm_opts",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override a key of the sweep file's launcher block, e.g. --slurm "
+    "partition=gpu --slurm time=120 (repeatable).",
+)
+@click.option(
+    "--status", is_flag=True, help="Show finished, running, queued and failed cells with job logs."
+)
+@click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
+@click.option("--worker", type=int, default=0, hidden=True)
+@protocol_options
+@trainer_options
+@store_options
+def sweep(
+    sweep_file,
+    force,
+    retrain,
+    quiet,
+    launcher,
+    jobs,
+    slurm_opts,
+    status,
+    wait,
+    worker,
+    frame,
+    context_normals,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+    **trainer,
+) -> None:
+    """Run every method x dataset x split x context size x seed of SWEEP_FILE.
+
+    Finished cells (same resolved config hash) are skipped: rerun the same command after
+    Ctrl-C or a crash and only the missing cells run. --force recomputes everything.
+
+    \b
+    A sweep file (YAML):
+      name: default
+      profile: quick                 # optional
+      methods: all                   # or a list: [gauss, {name: gauss, options: {sigma: 0.02}}]
+      datasets: [synthetic]          # or [{name: synthetic, options: {...}, data_root: ...}]
+      splits: [trained, novel]
+      contexts: [50, 100, 300, 1000]
+      seeds: [0]
+      frame: unit-radius             # or unit-diameter (the paper's scale)
+      context_normals: false         # the paper's protocol: points only
+      launcher: {name: slurm, partition: gpu, time: 240, gpus_per_node: 1,
+                 tracking: per-job, methods: {gauss: {gpus_per_node: 0}}}
+
+    A method entry may carry a leaderboard label: {name: gauss, options: {sigma: 0.05},
+    label: gauss-wide}. Exits with status 1 when every object of some cell failed.
+
+    --launcher local -j N runs the cells in N worker processes (logs under the workspace's
+    logs/), each cell once and each training once, then prints the summaries.
+
+    --launcher slurm submits the missing trainings (one job each, one task per device) and
+    the missing cells (job arrays that start after their training), then returns; follow with
+    --status, and rerun the same command to resubmit what failed. See docs/cluster.md.
+
+    \b
+    Examples:
+      shapebench sweep configs/sweeps/default.yaml
+      shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
+      shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
+      shapebench sweep configs/sweeps/default.yaml --status
+    """
+    from shapebench.cli.printing import print_summary
+    from shapebench.sweeps.spec import load_sweep
+
+    spec = load_sweep(Path(sweep_file))
+    settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
+    if frame is not None or context_normals is not None:
+        from dataclasses import replace
+
+        spec = replace(
+            spec,
+            protocol=_protocol(
+                frame or spec.protocol.frame,
+                spec.protocol.context_normals if context_normals is None else context_normals,
+            ),
+        )
+    from shapebench.sweeps.submit import SweepLaunch, run_inline, show_status, start_sweep
+
+    launch = SweepLaunch(
+        spec=spec,
+        sweep_file=Path(sweep_file),
+        settings=settings,
+        launcher=launcher or spec.launcher.get("name") or "inline",
+        jobs=jobs,
+        trainer={k: v for k, v in trainer.items() if v is not None},
+        overrides=_parse(slurm_opts, "--slurm"),
+        force=force,
+        retrain=retrain,
+        quiet=quiet,
+        wait=wait,
+        worker=worker,
+        frame=frame,
+        context_normals=context_normals,
+    )
+    if status:
+        show_status(launch)
+        return
+    if not start_sweep(launch, _argv_after("sweep")):
+        return  # submitted as jobs
+
+    def report(method: str, dataset: str, exc: ShapebenchError) -> None:
+        click.secho(f"Error: {method} on {dataset}: {exc.message}", fg="red", err=True)
+        if exc.hint:
+            click.echo(f"  hint: {exc.hint}", err=True)
+        click.echo("  continuing with the rest of the sweep", err=True)
+
+    from shapebench.sweeps.spec import SweepProgress, sweep_size
+
+    progress = SweepProgress(sweep_size(spec, settings))
+    outcomes = []
+    for outcome in run_inline(launch, report):
+        print_summary(outcome, settings)
+        click.secho(progress.update(outcome), dim=True)
+        outcomes.append(outcome)
+    _exit_if_all_failed(outcomes)
+
+
+@cli.command()
+@click.option("--method", "-m", required=True, help="Method name.")
+@click.option("--dataset", "-d", required=True, help="Dataset to train on (its train split).")
+@click.option("--seed", default=0, show_default=True, help="Training seed.")
+@click.option(
+    "--retrain",
+    is_flag=True,
+    help="Train even where shapebench ships a reference checkpoint of the same key "
+    "(by default it is installed instead).",
+)
+@click.option("--quiet", "-q", is_flag=True, help="Less output.")
+@plugin_options
+@trainer_options
+@store_options
+def train(
+    method,
+    dataset,
+    seed,
+    retrain,
+    quiet,
+    method_opts,
+    dataset_opts,
+    data_root,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+    **trainer,
+) -> None:
+    """Train METHOD on DATASET's train split (one Lightning Trainer.fit in this process).
+
+    The checkpoint is keyed by (method config, dataset, seed) and reused by 'run' and 'sweep';
+    an interrupted training resumes from its last checkpoint. 'run' trains by itself when no
+    checkpoint exists: train ahead to do it on another machine or with other devices. Where
+    shapebench ships a reference checkpoint of the key (the synthetic benchmark at the default
+    profile), it is installed instead of training, unless --retrain.
+
+    \b
+    Examples:
+      shapebench train -m msc -d synthetic
+      shapebench train -m pcn -d synthetic --max-epochs 5 --quiet
+      shapebench train -m msc -d shapenet --data-root ~/data/ShapeNetCore.v2 \\
+          --accelerator gpu --devices 2 --strategy ddp --profile paper
+    """
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.training import train_here
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    reg = get_registry()
+    resolved = resolve_method(reg, method, settings, _parse(method_opts, "-O"))
+    if not resolved.cls.trains:
+        raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
+    ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
+    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet, retrain)
+    click.echo(f"checkpoint: {record['path']}")

@@ -1,0 +1,356 @@
+"""``shapebench leaderboard``, ``report``, ``runs``, ``show``, ``ui`` and ``merge``: what the store
+holds, as tables, pages and the MLflow UI."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from shapebench.cli.app import (
+    _settings,
+    cli,
+    store_options,
+)
+
+
+@cli.command()
+@click.option("--dataset", "-d", required=True, help="Dataset whose runs to tabulate.")
+@click.option(
+    "--split",
+    "splits",
+    default=None,
+    help="Comma-separated splits [default: every split with runs].",
+)
+@click.option(
+    "--reference",
+    default="msc-noopt",
+    show_default=True,
+    help="Method the normalised table divides by (paper's eq. 8).",
+)
+@click.option("--metric", default=None, help="Metric to rank by [default: the dataset's].")
+@click.option(
+    "--frame",
+    type=click.Choice(["unit-radius", "unit-diameter"]),
+    default="unit-radius",
+    show_default=True,
+    help="Evaluation frame of the runs to tabulate; unit-diameter tables show the paper's "
+    "figures beside ours and are written as <dataset>-<split>-unit-diameter.md.",
+)
+@click.option(
+    "--data-version",
+    default=None,
+    metavar="FINGERPRINT",
+    help="Tabulate this data version (a fingerprint prefix) [default: the newest with runs].",
+)
+@click.option(
+    "--all-variants",
+    is_flag=True,
+    help="Also show older variants that share a label with a newer one (suffixed #key).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="leaderboards",
+    show_default=True,
+    help="Where the .md and .csv files are written.",
+)
+@store_options
+def leaderboard(
+    dataset,
+    splits,
+    reference,
+    metric,
+    frame,
+    data_version,
+    all_variants,
+    out_dir,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
+    """Build raw and normalised Chamfer tables for DATASET from the runs in MLflow.
+
+    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3.
+    A row is one method variant (options, code, checkpoint, protocol), labelled like
+    gauss[sigma=0.05]; per context size the best row is bold and rows statistically tied with
+    it (paired Wilcoxon over the same objects, Holm-corrected) are marked. The paper's own
+    figures (ShapeNet, ICL-NUIM) appear only beside a --frame unit-diameter table.
+
+    \b
+    Examples:
+      shapebench leaderboard -d synthetic
+      shapebench leaderboard -d synthetic --split trained --reference gauss
+      shapebench leaderboard -d shapenet --frame unit-diameter   # beside the paper's figures
+      shapebench leaderboard -d meshes --data-version 3f2a       # an older data version
+    """
+    from shapebench.boards.leaderboard import build_leaderboards
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    for path in build_leaderboards(
+        settings,
+        dataset,
+        splits.split(",") if splits else None,
+        reference,
+        metric,
+        Path(out_dir),
+        frame,
+        data_version,
+        all_variants,
+    ):
+        click.echo(f"wrote {path}")
+
+
+@cli.command()
+@click.option("--dataset", "-d", required=True, help="Dataset whose runs to report.")
+@click.option(
+    "--split",
+    "splits",
+    default=None,
+    help="Comma-separated splits [default: every split with runs].",
+)
+@click.option(
+    "--reference",
+    default="msc-noopt",
+    show_default=True,
+    help="Method the normalised table divides by (paper's eq. 8).",
+)
+@click.option("--metric", default=None, help="Metric to rank by [default: the dataset's].")
+@click.option(
+    "--frame",
+    type=click.Choice(["unit-radius", "unit-diameter"]),
+    default="unit-radius",
+    show_default=True,
+    help="Evaluation frame of the runs to report.",
+)
+@click.option(
+    "--data-version",
+    default=None,
+    metavar="FINGERPRINT",
+    help="Report this data version (fingerprint prefix) [default: newest].",
+)
+@click.option(
+    "--all-variants",
+    is_flag=True,
+    help="Also show older variants that share a label with a newer one.",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False),
+    default="leaderboards",
+    show_default=True,
+    help="Where the page and its figures are written.",
+)
+@store_options
+def report(
+    dataset,
+    splits,
+    reference,
+    metric,
+    frame,
+    data_version,
+    all_variants,
+    out_dir,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
+    """Write one self-contained HTML page for DATASET from the runs in MLflow.
+
+    Per split: the winner at each context size and the rows tied with it, the raw and
+    normalised tables (sortable), cost (test time per object, training device-hours), the
+    metric card, Chamfer against context size and accuracy against cost, the qualitative grids
+    (rows = methods, columns = context sizes), posterior-spread pictures, and provenance.
+    Written as leaderboards/<dataset>-report.html (open it in any browser; it fetches
+    nothing) and logged to MLflow beside the leaderboard.
+
+    \b
+    Examples:
+      shapebench report -d synthetic
+      shapebench report -d synthetic --split novel --reference gauss
+      shapebench report -d shapenet --frame unit-diameter
+    """
+    from shapebench.boards.html_report import build_report
+
+    # Reading back dozens of small artifacts would print one progress bar each.
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    page, seconds = build_report(
+        settings,
+        dataset,
+        splits.split(",") if splits else None,
+        reference,
+        metric,
+        Path(out_dir),
+        frame,
+        data_version,
+        all_variants,
+    )
+    click.echo(f"wrote {page} in {seconds:.1f} s (open it in a browser)")
+
+
+@cli.command()
+@click.option(
+    "--kind",
+    type=click.Choice(["cell", "parent", "training", "all"]),
+    default="cell",
+    show_default=True,
+    help="cell: one per context size and seed; parent: one per method variant and split; "
+    "training: trainings.",
+)
+@click.option("--method", "-m", default=None, help="Only runs of this method.")
+@click.option("--dataset", "-d", default=None, help="Only runs on this dataset.")
+@click.option("--split", default=None, help="Only runs on this split.")
+@click.option("--context", "-k", type=int, default=None, help="Only cells of this context size.")
+@click.option(
+    "--status",
+    type=click.Choice(["finished", "running", "failed", "killed"], case_sensitive=False),
+    default=None,
+    help="Only runs in this state.",
+)
+@click.option("--limit", default=1000, show_default=True, help="At most this many (newest).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON (one object per run).")
+@store_options
+def runs(
+    kind,
+    method,
+    dataset,
+    split,
+    context,
+    status,
+    limit,
+    as_json,
+    profile,
+    tracking_uri,
+    cache_dir,
+    workspace,
+) -> None:
+    """List the runs in the store: variant, dataset/split, context size, seed, status, the
+    primary metric (mean over objects, at its card's scale), failures, duration and run id.
+
+    \b
+    Examples:
+      shapebench runs                              # every cell
+      shapebench runs -d synthetic --split novel -k 100
+      shapebench runs --status failed              # what to look at
+      shapebench runs --kind training              # trainings and how long they took
+      shapebench runs -m gauss --json | jq '.[].value'
+    """
+    from shapebench.store.listing import format_rows, list_runs, rows_json
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    rows = list_runs(settings, kind, method, dataset, split, status, context, limit)
+    if as_json:
+        click.echo(rows_json(rows))
+        return
+    if not rows:
+        click.echo(f"No {kind if kind != 'all' else ''} runs match in {settings.tracking_uri}.")
+        return
+    for line in format_rows(rows):
+        click.echo(line)
+    click.echo(f"{len(rows)} runs; details: shapebench show RUN_ID")
+
+
+@cli.command()
+@click.argument("run_id", metavar="RUN")
+@click.option("--all", "all_tags", is_flag=True, help="Also every tag and param.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@store_options
+def show(run_id, all_tags, as_json, profile, tracking_uri, cache_dir, workspace) -> None:
+    """Show one run: what it evaluated, its metrics, artifacts and links to it (and to its
+    training) in the MLflow UI. RUN is a run id or a unique prefix of one.
+
+    \b
+    Examples:
+      shapebench show 3f2a9c                       # a prefix from 'shapebench runs'
+      shapebench show 3f2a9c --all                 # with every tag and param
+      shapebench show 3f2a9c --json
+    """
+    from shapebench.store.listing import details_json, format_details, show_run
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    details = show_run(settings, run_id)
+    if as_json:
+        click.echo(details_json(details))
+        return
+    for line in format_details(details, all_tags):
+        click.echo(line)
+
+
+@cli.command()
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to bind; 0.0.0.0 exposes the UI to your network.",
+)
+@click.option("--port", default=5000, show_default=True, help="Port to listen on.")
+@click.option("--workers", default=1, show_default=True, help="Server worker processes.")
+@store_options
+def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None:
+    """Start the MLflow UI on the configured store; print links to each experiment.
+
+    The links open an experiment's runs table with the primary metric as a column, and its
+    chart view, where each method variant is one line of the metric against context size.
+    Exits with status 2, before starting anything, when the port is taken.
+
+    \b
+    Examples:
+      shapebench ui                                # http://127.0.0.1:5000
+      shapebench ui --port 5001                    # when 5000 is taken
+      shapebench ui --workspace jobs/ws-0          # another workspace's store
+    """
+    from shapebench.store.ui import experiment_links, print_links, serve
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    if settings.is_remote:
+        from shapebench.store.tracking import check_reachable, open_client
+
+        check_reachable(settings.tracking_uri)
+        click.echo(
+            f"Runs are on the tracking server {settings.tracking_uri}: open it in a browser."
+        )
+        print_links(
+            experiment_links(open_client(settings.tracking_uri), settings.tracking_uri), click.echo
+        )
+        return
+    serve(settings, host, port, workers, click.echo)
+
+
+@cli.command()
+@click.argument("stores", nargs=-1, required=True, metavar="STORE...")
+@click.option(
+    "--into",
+    "into",
+    default=None,
+    metavar="URI",
+    help="Store to merge into [default: this workspace's store, or --tracking-uri].",
+)
+@store_options
+def merge(stores, into, profile, tracking_uri, cache_dir, workspace) -> None:
+    """Import the finished cells and trainings of other MLflow stores into one.
+
+    For jobs on nodes without a tracking server: each job logs to a workspace of its own, then
+    this brings their runs together. A STORE is a workspace folder, its mlflow.db, or a tracking
+    URI. Runs are matched by cell key (trainings by checkpoint key), so merging a store twice
+    adds nothing.
+
+    \b
+    Examples:
+      shapebench merge jobs/ws-0 jobs/ws-1 jobs/ws-2
+      shapebench merge jobs/ws-* --into http://127.0.0.1:5000
+    """
+    from shapebench.store.merge import merge_stores
+
+    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    target = into or settings.tracking_uri
+    from shapebench.store.tracking import check_reachable
+
+    check_reachable(target)
+    report = merge_stores(list(stores), target, echo=click.echo)
+    click.echo(f"into {target}: {report.line()}")
