@@ -16,7 +16,9 @@ import sys
 import warnings
 from types import ModuleType
 
-#: Old module -> the module that now holds its code (docs/architecture.md has the rooms).
+#: Old module -> the module that now holds its code (docs/architecture.md has the rooms). Two old
+#: modules are packages now: ``shapebench.registry`` hands on the names of its ``discovery``
+#: module with the same warning, ``shapebench.cli`` exports ``cli`` and ``main`` as before.
 MOVED: dict[str, str] = {
     "shapebench.hookspecs": "shapebench.api.hookspecs",
     "shapebench.method": "shapebench.api.method",
@@ -27,7 +29,6 @@ MOVED: dict[str, str] = {
     "shapebench.errors": "shapebench.api.errors",
     "shapebench.protocol": "shapebench.api.protocol",
     "shapebench.contexts": "shapebench.api.contexts",
-    "shapebench.registry": "shapebench.registry.discovery",
     "shapebench.resolve": "shapebench.registry.resolve",
     "shapebench.variant": "shapebench.registry.variant",
     "shapebench.code_digest": "shapebench.registry.code_digest",
@@ -60,7 +61,6 @@ MOVED: dict[str, str] = {
     "shapebench.launchers": "shapebench.sweeps.launchers",
     "shapebench.sweep_cli": "shapebench.sweeps.submit",
     "shapebench.report": "shapebench.cli.printing",
-    "shapebench.cli": "shapebench.cli.app",
     "shapebench.apidoc": "shapebench.cli.apidoc",
     "shapebench.implicit.module_base": "shapebench.train.lightning_module",
 }
@@ -96,6 +96,8 @@ class _MovedModules(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
 
 def install() -> None:
-    """Put the finder on :data:`sys.meta_path` (once)."""
+    """Put the finder first on :data:`sys.meta_path` (once): it answers only the old names, and
+    one of them (``shapebench.reference_checkpoints``) is also a data folder that the path finder
+    would take for a namespace package."""
     if not any(isinstance(f, _MovedModules) for f in sys.meta_path):
-        sys.meta_path.append(_MovedModules())
+        sys.meta_path.insert(0, _MovedModules())

@@ -142,3 +142,33 @@ def test_the_core_names_no_builtin_plugin():
     assert not offenders, "a built-in declares what it needs itself (check_options): " + str(
         offenders
     )
+
+
+def test_the_import_paths_of_0_1_still_work_and_warn():
+    import importlib
+    import warnings
+
+    from shapebench._moved import MOVED
+
+    for old, new in MOVED.items():
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sys.modules.pop(old, None)
+            module = importlib.import_module(old)
+        assert module is importlib.import_module(new), old
+        assert module.__spec__.name == new  # pickling and reloads see the real name
+        assert any(
+            issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught
+        ), old
+    # The documented idioms of 0.1, as a plugin wrote them.
+    with pytest.warns(DeprecationWarning, match="shapebench.registry.testing"):
+        sys.modules.pop("shapebench.testing", None)
+        from shapebench.testing import check_method  # noqa: F401
+    with pytest.warns(DeprecationWarning, match="shapebench.train.lightning_method"):
+        from shapebench.implicit.method_base import LightningMethod
+    from shapebench.train.lightning_method import LightningMethod as moved
+
+    assert LightningMethod is moved
+    with pytest.warns(DeprecationWarning, match="shapebench.registry.discovery"):
+        from shapebench.registry import get_registry  # noqa: F401
+    from shapebench.cli import cli, main  # noqa: F401 (0.1's module is a package with both)

@@ -91,7 +91,7 @@ def _run_fresh(code: str) -> object:
 def test_cli_startup_imports_neither_torch_nor_mlflow():
     code = (
         "import json, sys\n"
-        "from shapebench.cli.app import cli\n"
+        "from shapebench.cli import cli\n"
         "from shapebench.registry.discovery import get_registry\n"
         "reg = get_registry(); assert reg.names('method')\n"
         f"print(json.dumps([m for m in {(*HEAVY, 'trimesh')!r} if m in sys.modules]))\n"
@@ -134,7 +134,7 @@ def test_methods_command_imports_no_torch():
         "import atexit, json, sys\n"
         f"atexit.register(lambda: print(json.dumps([m for m in {HEAVY!r} if m in sys.modules])))\n"
         "sys.argv = ['shapebench', 'methods']\n"
-        "from shapebench.cli.app import main\n"
+        "from shapebench.cli import main\n"
         "main()\n"
     )
     assert _run_fresh(code) == []

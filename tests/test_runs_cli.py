@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 from conftest import TINY, Shapebench
 
-from shapebench.cli.app import cli
+from shapebench.cli import cli
 
 RUN = ["-d", "synthetic", *TINY, "--split", "novel", "--contexts", "50,100"]
 

@@ -4,3 +4,24 @@ identity (:mod:`~shapebench.registry.variant`), the code digest in every key
 (:mod:`~shapebench.registry.code_digest`), and the plugin checks (:mod:`~shapebench.registry.check`,
 :mod:`~shapebench.registry.testing`). Imports :mod:`shapebench.api` and nothing above it.
 """
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def __getattr__(name: str) -> Any:
+    # shapebench 0.1's module shapebench.registry is shapebench.registry.discovery now.
+    import warnings
+
+    from shapebench.registry import discovery
+
+    if name.startswith("__") or not hasattr(discovery, name):
+        raise AttributeError(f"module 'shapebench.registry' has no attribute {name!r}")
+    warnings.warn(
+        f"shapebench.registry.{name} has moved to shapebench.registry.discovery; import it "
+        "from there (the old path works until shapebench 0.3)",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return getattr(discovery, name)
