@@ -59,7 +59,6 @@ def _strings(path: Path) -> list[tuple[int, str]]:
     ]
 
 
-@pytest.mark.slow  # builds the whole import graph: ~5 s
 def test_the_layer_contracts_hold():
     lint = shutil.which("lint-imports", path=str(Path(sys.executable).parent))
     assert lint, "import-linter is part of the test extra: pip install -e '.[test]'"
