@@ -171,3 +171,21 @@ def test_the_import_paths_of_0_1_still_work_and_warn():
     with pytest.warns(DeprecationWarning, match="shapebench.registry.discovery"):
         from shapebench.registry import get_registry  # noqa: F401
     from shapebench.cli import cli, main  # noqa: F401 (0.1's module is a package with both)
+
+
+@pytest.mark.slow  # a fresh interpreter importing torch, Lightning and MLflow: ~10 s
+def test_every_room_imports_its_modules_in_a_fresh_interpreter():
+    """``from shapebench.<room> import <module>`` as the first import of a process, for every
+    module of every room (a room's ``__getattr__`` must not shadow its own modules)."""
+    lines = []
+    # registry/ first: its __getattr__ hands on the names of 0.1's shapebench.registry.
+    rooms = sorted(p.parent for p in PACKAGE.glob("*/__init__.py"))
+    for room in sorted(rooms, key=lambda r: r.name != "registry"):
+        modules = sorted(p.stem for p in room.glob("*.py") if p.stem != "__init__")
+        if modules:
+            lines.append(f"from shapebench.{room.name} import {', '.join(modules)}")
+    code = "import warnings; warnings.simplefilter('error', DeprecationWarning)\n" + "\n".join(
+        lines
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]

@@ -9,14 +9,19 @@ from __future__ import annotations
 
 from typing import Any
 
+#: The modules of this room: the import system asks for them here before it imports them.
+_MODULES = frozenset({"check", "code_digest", "discovery", "resolve", "testing", "variant"})
+
 
 def __getattr__(name: str) -> Any:
     # shapebench 0.1's module shapebench.registry is shapebench.registry.discovery now.
+    import importlib
     import warnings
 
-    from shapebench.registry import discovery
-
-    if name.startswith("__") or not hasattr(discovery, name):
+    if name.startswith("__") or name in _MODULES:
+        raise AttributeError(f"module 'shapebench.registry' has no attribute {name!r}")
+    discovery = importlib.import_module("shapebench.registry.discovery")
+    if not hasattr(discovery, name):
         raise AttributeError(f"module 'shapebench.registry' has no attribute {name!r}")
     warnings.warn(
         f"shapebench.registry.{name} has moved to shapebench.registry.discovery; import it "
