@@ -10,6 +10,7 @@ from conftest import TINY, TINY_CONTEXTS
 from shapebench.api.errors import ShapebenchError
 from shapebench.boards.leaderboard import build_board
 from shapebench.config import make_settings
+from shapebench.store.records import CellRecord
 from shapebench.store.tracking import Tracker
 
 
@@ -102,21 +103,22 @@ def test_leaderboard_without_runs_is_a_clear_error(shapebench):
 
 
 def _log_cell(client, exp_id: str, method: str, card: str) -> None:
-    run = client.create_run(
-        exp_id,
-        tags={
-            "shapebench.kind": "cell",
-            "method": method,
-            "display_name": method,
-            "dataset": "synthetic",
-            "fingerprint": "f",
-            "context_size": "50",
-            "seed": "0",
-            "card.chamfer-l2": card,
-            "variant_key": method,
-            "variant_label": method,
-        },
+    """A finished cell run whose tags are the store's own record format (never hand-written
+    tag strings: those drift from what the store reads)."""
+    record = CellRecord(
+        cell_key=f"cell-{method}",
+        method=method,
+        dataset="synthetic",
+        split="novel",
+        context_size=50,
+        seed=0,
+        cards={"chamfer-l2": card},
+        display_name=method,
+        fingerprint="f",
+        variant_key=method,
+        variant_label=method,
     )
+    run = client.create_run(exp_id, tags=record.to_tags())
     client.set_terminated(run.info.run_id)
 
 
