@@ -1,8 +1,11 @@
 """Shared fixtures: a tiny synthetic benchmark, real pip-installed test plugins, CLI runner.
 
-The CLI tests run ``python -m shapebench`` in subprocesses, exactly as a user would, with the
+The CLI tests run ``python -m shapebench`` in processes of their own, as a user would, with the
 third-party test plugins under ``tests/plugins/`` installed by pip into temporary folders that are
 put on PYTHONPATH (a real install with real entry-point metadata, without touching the venv).
+``Shapebench(...)`` forks them from an interpreter that has imported the heavy third-party
+modules once (tests/cli_fork.py: most of a command's time here was imports);
+``Shapebench.popen`` and ``SHAPEBENCH_TEST_EXEC=1`` start a new interpreter.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from cli_fork import ForkServer
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGINS = ROOT / "tests" / "plugins"
@@ -108,6 +112,19 @@ def data_cache(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("cache")
 
 
+#: Variables read when a preloaded library is imported: a command given one starts with exec.
+EXEC_ONLY_ENV = {"OMP_NUM_THREADS", "MKL_NUM_THREADS", "PYTHONWARNINGS", "PYTHONHASHSEED"}
+
+#: Commands run by ``Shapebench(...)`` fork a pre-imported interpreter (tests/cli_fork.py), unless
+#: SHAPEBENCH_TEST_EXEC=1; ``Shapebench.popen`` always starts a new interpreter.
+_fork_server = None if os.environ.get("SHAPEBENCH_TEST_EXEC") == "1" else ForkServer()
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:
+    if _fork_server is not None:
+        _fork_server.close()
+
+
 @dataclass
 class Result:
     returncode: int
@@ -148,15 +165,21 @@ class Shapebench:
             **kw,
         )
 
-    def __call__(self, *args: str, timeout: float = 300) -> Result:
-        proc = subprocess.run(
-            [sys.executable, "-m", "shapebench", *args],
-            env=self.env(),
-            cwd=self.workspace,
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-        )
+    def __call__(self, *args: str, timeout: float = 300, fresh: bool = False) -> Result:
+        """Run ``shapebench *args``; ``fresh``: in a new interpreter, for a test of what the
+        command itself imports (the fork server has imported torch and Lightning already)."""
+        env = self.env()
+        if _fork_server is not None and not fresh and not (set(env) & EXEC_ONLY_ENV):
+            proc = _fork_server.run(list(args), env, self.workspace, timeout)
+        else:
+            proc = subprocess.run(
+                [sys.executable, "-m", "shapebench", *args],
+                env=env,
+                cwd=self.workspace,
+                capture_output=True,
+                text=True,
+                timeout=timeout,
+            )
         return Result(proc.returncode, proc.stdout, proc.stderr)
 
     def client(self):

@@ -66,7 +66,11 @@ def test_max_epochs_is_part_of_the_checkpoint_key_and_the_row(with_example):
     res = sb("leaderboard", "-d", "synthetic", "--reference", "example-template")
     assert res.returncode == 0, res.stderr
     labels = set(_csv(sb, "synthetic-novel.csv")["label"])
-    assert labels == {"example-template", "example-template[epochs=3]"}
+    # TINY trains on one shape per category where the profile says 6: the label says so too.
+    assert labels == {
+        "example-template[train_per_category=1]",
+        "example-template[epochs=3,train_per_category=1]",
+    }
 
 
 def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
@@ -92,6 +96,33 @@ def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
     assert key(seed=1) != base
     assert key(strategy="ddp") == base  # one process either way: same weights
     assert apply_trainer(method, TrainerOptions(max_epochs=3)).options.epochs == 3
+
+
+def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):
+    """A data-scaling sweep trains one method on more shapes: each scale is a checkpoint of its
+    own and a row of its own, labelled so the rows read apart; the evaluation data is the same."""
+    from shapebench.api.method import TrainerOptions
+    from shapebench.evaluate.orchestrate import EvalRequest, _variant
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.training import checkpoint_key, training_identity
+
+    settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
+    reg = get_registry()
+    method = resolve_method(reg, "msc", settings)
+    trainer = TrainerOptions(accelerator="cpu")
+    rows = {}
+    for scale in (None, 6, 20):  # 6 is the quick profile's own value
+        opts = {} if scale is None else {"train_per_category": scale}
+        data = resolve_dataset(reg, "synthetic", settings, None, opts)
+        req = EvalRequest("msc", "synthetic", dataset_opts=opts)
+        variant = _variant(method, data, req, settings, trainer, training_identity(method, trainer))
+        rows[scale] = (checkpoint_key(method, data, trainer), variant, data.fingerprint())
+    assert rows[None][0] == rows[6][0] != rows[20][0]
+    assert rows[None][1] == rows[6][1] and rows[None][1].label == "msc"
+    assert rows[20][1].key != rows[None][1].key
+    assert rows[20][1].label == "msc[train_per_category=20]"
+    assert rows[None][2] == rows[20][2]  # the same test objects: the rows can be compared
 
 
 def test_code_digest_follows_the_source(tmp_path, monkeypatch):

@@ -9,12 +9,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from shapebench.api import options as opts
 from shapebench.api.dataset import Dataset
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import Method, TrainerOptions
 from shapebench.api.protocol import Protocol
 from shapebench.api.types import TRAIN
-from shapebench.config import Settings
+from shapebench.config import Settings, plugin_overrides
 from shapebench.evaluate.runner import CellResult, Runner, RunPlan, validate_contexts
 from shapebench.registry.discovery import get_registry
 from shapebench.registry.resolve import (
@@ -243,6 +244,10 @@ def _variant(
         training_overrides = {  # epochs shows as the method's own option when it has one
             k: v for k, v in training.items() if k not in shown and base.get(k) != v
         }
+        # The training data is part of the row (its fingerprint is in the key); a changed
+        # training scale (-D train_per_category=20) shows in the label too, so that the rows of
+        # a data-scaling sweep read apart.
+        training_overrides.update(_training_data_overrides(dataset, settings))
     return make_variant(
         method.name,
         method.config(),
@@ -256,6 +261,21 @@ def _variant(
         label=req.label,
         weights=weights,
     )
+
+
+def _training_data_overrides(dataset: Dataset, settings: Settings) -> dict[str, Any]:
+    """The dataset's training-only options (``training_only`` in their metadata) that differ
+    from the profile's values: what a training saw beyond the evaluation data."""
+    from dataclasses import fields
+
+    profile = plugin_overrides("dataset", dataset.name, settings.profile)
+    defaults = opts.build(type(dataset.options), profile, f"dataset {dataset.name!r}")
+    return {
+        f.name: getattr(dataset.options, f.name)
+        for f in fields(dataset.options)
+        if f.metadata.get("training_only")
+        and getattr(dataset.options, f.name) != getattr(defaults, f.name)
+    }
 
 
 def _method_factory(
