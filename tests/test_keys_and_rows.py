@@ -96,6 +96,12 @@ def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
     assert key(seed=1) != base
     assert key(strategy="ddp") == base  # one process either way: same weights
     assert apply_trainer(method, TrainerOptions(max_epochs=3)).options.epochs == 3
+    # The profile's step budget: --max-steps changes it, --max-epochs replaces it by epochs.
+    assert method.options.steps == 900
+    assert key(max_steps=901) != base and key(max_steps=900) == base
+    assert apply_trainer(method, TrainerOptions(max_steps=50)).options.steps == 50
+    assert apply_trainer(method, TrainerOptions(max_epochs=3)).options.steps == 0
+    assert key(max_epochs=3, max_steps=50) != key(max_steps=50)
 
 
 def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from shapebench.api.options import completion_option, option
+from shapebench.api.options import completion_option, option, steps_option
 from shapebench.api.types import Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
 from shapebench.implicit.options import (
@@ -42,11 +42,15 @@ class DeepSDFOptions:
     depth: int = option(8, "decoder hidden layers (8)")
     dropout: float = option(0.2, "dropout after each hidden layer")
     epochs: int = option(5000, "training epochs (paper: 5000)")
+    steps: int = steps_option()
     batch_shapes: int = option(32, "objects per batch (paper: 32)")
     sdf_points: int = option(16384, "SDF samples per object and step")
     lr: float | None = option(None, "decoder learning rate [paper 1e-3, official 5e-4]")
     latent_lr: float = option(1e-3, "code learning rate")
     lr_halve_every: int = option(500, "epochs between lr halvings")
+    lr_halve_steps: int | None = option(
+        None, "optimiser steps between lr halvings, instead of epochs (0: never halve)"
+    )
     clamp: float = option(0.1, "SDF clamping distance delta")
     code_reg: float = option(1e-4, "code regularisation weight")
     # The test-time optimiser, shared with IGR and MSC (shapebench.implicit.recipes).

@@ -49,7 +49,7 @@ class DeepSDFModule(OptionsModule):
             {"params": self.decoder.parameters(), "lr": o.lr},
             {"params": self.latents.parameters(), "lr": o.latent_lr},
         ]
-        return adam_halving(groups, o.lr, o.lr_halve_every)
+        return adam_halving(groups, o.lr, o.lr_halve_every, o.lr_halve_steps)
 
     def completion_loss(self, points: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         """Only the context points, with SDF 0, and 1e-4 * mean(z^2) (``reconstruct.py``'s

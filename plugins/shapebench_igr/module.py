@@ -76,7 +76,8 @@ class IGRModule(OptionsModule):
         return loss
 
     def configure_optimizers(self):
-        return adam_halving(self.parameters(), self.options.lr, self.options.lr_halve_every)
+        o = self.options
+        return adam_halving(self.parameters(), o.lr, o.lr_halve_every, o.lr_halve_steps)
 
     def completion_loss(
         self, points: torch.Tensor, normals: torch.Tensor | None, eikonal_samples: int = 0

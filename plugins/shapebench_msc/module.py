@@ -98,7 +98,8 @@ class MSCModule(OptionsModule):
         return perm[:m].to(device), target.to(device)
 
     def configure_optimizers(self):
-        return adam_halving(self.parameters(), self.options.lr, self.options.lr_halve_every)
+        o = self.options
+        return adam_halving(self.parameters(), o.lr, o.lr_halve_every, o.lr_halve_steps)
 
     def context_nll(
         self, points: torch.Tensor, eikonal_weight: float = 0.0

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shapebench.api.errors import ConfigError
-from shapebench.api.options import completion_option, option
+from shapebench.api.options import completion_option, option, steps_option
 from shapebench.api.types import Supervision
 from shapebench.implicit.method_base import ImplicitMethod
 from shapebench.implicit.options import largest_component_option, recipe_option
@@ -58,6 +58,7 @@ class OccNetOptions:
     query_points: int = option(2048, "occupancy queries per step")
     surface_points: int = option(300, "surface points loaded per step")
     epochs: int = option(5000, "training epochs (paper: 5000)")
+    steps: int = steps_option()
     batch_shapes: int = option(64, "objects per batch (64)")
     lr: float = option(1e-4, "learning rate (1e-4)")
     threshold: float = completion_option(

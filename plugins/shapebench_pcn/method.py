@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shapebench.api.options import option
+from shapebench.api.options import option, steps_option
 from shapebench.api.types import Completion, Context, Supervision
 from shapebench.train.lightning_method import LightningMethod
 
@@ -34,6 +34,7 @@ class PCNOptions:
         (50, 100, 300, 1000), "context sizes the batches draw from"
     )
     epochs: int = option(5000, "training epochs (paper: 5000)")
+    steps: int = steps_option()
     batch_shapes: int = option(32, "objects per batch (32)")
     lr: float = option(1e-4, "learning rate (1e-4)")
     lr_decay: float = option(0.7, "lr factor every lr_decay_steps")

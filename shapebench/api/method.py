@@ -42,7 +42,10 @@ class TrainerOptions:
     strategy: str = "auto"
     num_nodes: int = 1
     precision: str = "32-true"
+    #: ``--max-epochs``: an epoch budget; it replaces a method's step budget (see ``max_steps``).
     max_epochs: int | None = None
+    #: ``--max-steps``: an optimiser-step budget, the same cost at any training-set size.
+    max_steps: int | None = None
     seed: int = 0
     #: Save ``last.ckpt`` every this many epochs (0: only at the time interval and the end) ...
     checkpoint_every_epochs: int = 1

@@ -102,6 +102,13 @@ def option(default: Any, help_text: str) -> Any:
     return dataclasses.field(default=default, metadata={"help": help_text})
 
 
+def steps_option() -> Any:
+    """The ``steps`` option of a trained method: its budget in optimiser steps, which costs the
+    same at any training-set size (an epoch is 9 steps on 66 shapes, 3,750 on 30,000). 0 keeps
+    the ``epochs`` budget. ``--max-steps`` sets it, ``--max-epochs`` clears it."""
+    return option(0, "optimiser steps to train, whatever the training-set size (0: epochs)")
+
+
 def completion_option(default: Any, help_text: str) -> Any:
     """:func:`option` for an option that acts at completion time only: changing it never
     retrains (it is left out of the checkpoint key)."""

@@ -97,7 +97,23 @@ def trainer_options(f):
             ("--strategy", dict(default=None, help="auto, ddp, ddp_spawn, fsdp...")),
             ("--num-nodes", dict(type=int, default=None, help="Nodes for multi-node training.")),
             ("--precision", dict(default=None, help="32-true, bf16-mixed, 16-mixed...")),
-            ("--max-epochs", dict(type=int, default=None, help="Training epochs [profile].")),
+            (
+                "--max-epochs",
+                dict(
+                    type=int,
+                    default=None,
+                    help="Train this many epochs (replaces the profile's step budget).",
+                ),
+            ),
+            (
+                "--max-steps",
+                dict(
+                    type=int,
+                    default=None,
+                    help="Train this many optimiser steps, whatever the training-set size "
+                    "[profile].",
+                ),
+            ),
             (
                 "--checkpoint-every-epochs",
                 dict(

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from shapebench.api.options import completion_option, option
+from shapebench.api.options import completion_option, option, steps_option
 
 
 def recipe_option(
@@ -56,10 +56,14 @@ class IGRDecoderOptions:
     width: int = option(512, "decoder layer width (paper: 512)")
     depth: int = option(8, "decoder hidden layers (paper: 8)")
     epochs: int = option(5000, "training epochs (paper: 5000)")
+    steps: int = steps_option()
     batch_shapes: int = option(32, "objects per batch (paper: 32)")
     surface_points: int = option(16384, "surface points per object and step (paper: 16384)")
     lr: float | None = option(None, "decoder learning rate [paper 1e-4, official 5e-3]")
     lr_halve_every: int = option(500, "epochs between lr halvings")
+    lr_halve_steps: int | None = option(
+        None, "optimiser steps between lr halvings, instead of epochs (0: never halve)"
+    )
     eikonal_weight: float | None = option(None, "Eikonal weight lambda [paper 1.0, official 0.1]")
     normal_weight: float = option(1.0, "normal term weight tau")
     offsurface: str | None = option(

@@ -386,7 +386,9 @@ class EpochCheckpoints(pl.Callback):
         due = (
             (self.every_epochs and done % self.every_epochs == 0)
             or (self.seconds and time.monotonic() - self._last >= self.seconds)
-            or (trainer.max_epochs is not None and done >= trainer.max_epochs)
+            or (trainer.max_epochs not in (None, -1) and done >= trainer.max_epochs)
+            # A step budget ends mid-epoch; Lightning still ends that epoch (this hook runs).
+            or (trainer.max_steps not in (None, -1) and trainer.global_step >= trainer.max_steps)
         )
         # Every rank must take the same decision: saving is a collective call under DDP.
         if trainer.strategy.broadcast(bool(due), src=0):
@@ -400,6 +402,85 @@ class EpochCheckpoints(pl.Callback):
         from shapebench.train.checkpoints import STAMP
 
         checkpoint[STAMP] = {"key": self.key}
+
+
+class TrainingPlan(pl.Callback):
+    """Says what a training is about to cost, so that nobody starts a 44-hour run by accident.
+
+    When training starts: ``training plan: 66 shapes, 2700 optimiser steps (300 epochs x 9
+    batches of 8 shapes per device), on cpu x1``; after ``timed`` more steps (the first is left
+    out: it pays for start-up), the measured time per step and the estimated time left. Rank 0
+    only; ``quiet`` silences both.
+    """
+
+    def __init__(self, quiet: bool = False, timed: int = 5) -> None:
+        self.quiet = quiet
+        self.timed = timed
+        self._clock: float | None = None
+        self._from_step = 0
+        self.total = 0
+        #: Seconds per optimiser step, once measured.
+        self.step_seconds: float | None = None
+
+    def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        batches = int(trainer.num_training_batches)
+        shapes = len(trainer.train_dataloader.dataset)
+        batch = min(int(trainer.train_dataloader.batch_size or 1), shapes)
+        if trainer.max_steps not in (None, -1):
+            self.total = int(trainer.max_steps)
+            epochs = -(-self.total // max(batches, 1))
+            how = f"about {epochs} epochs of {batches} batches"
+        else:
+            self.total = int(trainer.max_epochs) * batches
+            how = f"{trainer.max_epochs} epochs x {batches} batches"
+        device = trainer.strategy.root_device.type
+        devices = trainer.num_devices * trainer.num_nodes
+        done = int(trainer.global_step)
+        resuming = f", resuming at step {done}" if done else ""
+        self._say(
+            f"training plan: {shapes} shapes, {self.total} optimiser steps ({how} of {batch} "
+            f"shapes per device), on {device} x{devices}{resuming}",
+            trainer,
+        )
+        # Few steps left: time them all, at least one.
+        self.timed = max(1, min(self.timed, self.total - done - 2))
+
+    def on_train_batch_end(
+        self,
+        trainer: pl.Trainer,
+        pl_module: pl.LightningModule,
+        outputs: Any,
+        batch: Any,
+        batch_idx: int,
+    ) -> None:
+        if self.step_seconds is not None:
+            return
+        if self._clock is None:  # the first step ends: start the clock
+            self._clock, self._from_step = time.perf_counter(), int(trainer.global_step)
+            return
+        timed = int(trainer.global_step) - self._from_step
+        if timed < self.timed:
+            return
+        self.step_seconds = (time.perf_counter() - self._clock) / timed
+        left = max(self.total - int(trainer.global_step), 0)
+        self._say(
+            f"{self.step_seconds:.3g} s per optimiser step over {timed} steps; about "
+            f"{_hms(self.step_seconds * left)} for the {left} step{'' if left == 1 else 's'} left",
+            trainer,
+        )
+
+    def _say(self, line: str, trainer: pl.Trainer) -> None:
+        if not self.quiet and trainer.is_global_zero:
+            print(line, file=sys.stderr, flush=True)
+
+
+def _hms(seconds: float) -> str:
+    """``42 s``, ``12 min``, ``3.5 h``: an estimate's precision."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 class StopRequested(Exception):
@@ -550,9 +631,18 @@ def _kept(last: Path) -> str:
 
 
 def fit_lightning(
-    module: pl.LightningModule, data: ShapeDataModule, ctx: TrainingContext, max_epochs: int
+    module: pl.LightningModule,
+    data: ShapeDataModule,
+    ctx: TrainingContext,
+    max_epochs: int,
+    max_steps: int = 0,
 ) -> Path:
     """One ``Trainer.fit``; resumes from ``<workdir>/last.ckpt``; returns that checkpoint.
+
+    The budget is ``max_steps`` optimiser steps when given (> 0), else ``max_epochs`` epochs;
+    ``--max-steps`` and ``--max-epochs`` (``ctx.trainer``) override them, ``--max-epochs``
+    alone ending a step budget. Before the first step the training prints its plan
+    (:class:`TrainingPlan`), and after a few steps an estimate of its time.
 
     Reproducible: Lightning's ``seed_everything`` seeds the global generators (weight
     initialisation), and every later draw (data subsets, shuffle order, per-step subsets, noise
@@ -587,15 +677,18 @@ def fit_lightning(
         last, ctx.workdir.name, t.checkpoint_every_epochs, t.checkpoint_minutes
     )
     stopper = StopOnSignal(last)
+    steps = t.max_steps or (0 if t.max_epochs else max_steps)
+    epochs = -1 if steps else (t.max_epochs or max_epochs)
     trainer = pl.Trainer(
         accelerator=t.accelerator,
         devices=t.devices,
         strategy=t.strategy,
         num_nodes=t.num_nodes,
         precision=t.precision,
-        max_epochs=t.max_epochs or max_epochs,
+        max_epochs=epochs,
+        max_steps=steps or -1,
         logger=logger,
-        callbacks=[saver, EpochSeeds(t.seed), stopper],
+        callbacks=[saver, EpochSeeds(t.seed), stopper, TrainingPlan(quiet=ctx.quiet)],
         default_root_dir=ctx.workdir,
         enable_checkpointing=False,
         plugins=[AtomicCheckpointIO(), *_cluster_environment()],
@@ -689,11 +782,17 @@ def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = Fa
     log_training_summary(logger, metrics, summary["optimizer_steps"], summary["device"])
 
 
-def adam_halving(params, lr: float, every: int) -> dict:
+def adam_halving(params, lr: float, every: int, every_steps: int | None = None) -> dict:
     """Adam whose learning rates halve every ``every`` epochs (IGR's, DeepSDF's and the paper's
-    schedule), in the form ``configure_optimizers`` returns. ``params`` may be parameter groups
-    with their own ``lr``."""
+    schedule), or every ``every_steps`` optimiser steps when that is given (0: never; a step
+    schedule does not stretch with the training-set size), in the form
+    ``configure_optimizers`` returns. ``params`` may be parameter groups with their own ``lr``."""
     opt = torch.optim.Adam(params, lr=lr)
+    if every_steps is not None:
+        if every_steps <= 0:
+            return {"optimizer": opt}
+        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=every_steps, gamma=0.5)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=every, gamma=0.5)
     return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
 

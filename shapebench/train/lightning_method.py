@@ -120,7 +120,9 @@ class LightningMethod(Method):
         data = self.data_module(ctx)
         n_shapes = data.load_objects()
         seed_training(ctx.trainer.seed)  # the initial weights are drawn here, not in fit_lightning
-        return fit_lightning(self.build_module(n_shapes), data, ctx, self.options.epochs)
+        module = self.build_module(n_shapes)
+        steps = int(getattr(self.options, "steps", 0) or 0)
+        return fit_lightning(module, data, ctx, self.options.epochs, steps)
 
     def load_checkpoint(self, path: Path) -> None:
         """Load ``Module`` from ``path``; the file may come from the user (``--checkpoint``), so

@@ -84,21 +84,41 @@ def world_size(trainer: TrainerOptions) -> int:
 
 def training_identity(method: ResolvedMethod, trainer: TrainerOptions) -> dict[str, Any]:
     """The trainer settings that change the trained weights; the accelerator does not count
-    (a checkpoint trained on a GPU serves a CPU evaluation)."""
-    return {
+    (a checkpoint trained on a GPU serves a CPU evaluation). The budget is the method's epochs
+    or, when it has a step budget, its optimiser steps (an epoch is 9 steps on 66 shapes and
+    3,750 on 30,000: a step budget costs the same at any training-set size)."""
+    identity: dict[str, Any] = {
         "epochs": trainer.max_epochs or getattr(method.options, "epochs", None),
         "precision": trainer.precision,
         "world_size": world_size(trainer),
         "seed": trainer.seed,
     }
+    steps = step_budget(method, trainer)
+    if steps:
+        identity["steps"] = steps
+    return identity
+
+
+def step_budget(method: ResolvedMethod, trainer: TrainerOptions) -> int:
+    """The optimiser steps a training runs, or 0 when it runs its epochs: ``--max-steps``, else
+    the method's ``steps`` option unless ``--max-epochs`` asked for an epoch budget."""
+    if trainer.max_steps:
+        return int(trainer.max_steps)
+    if trainer.max_epochs:
+        return 0
+    return int(getattr(method.options, "steps", 0) or 0)
 
 
 def apply_trainer(method: ResolvedMethod, trainer: TrainerOptions) -> ResolvedMethod:
-    """``--max-epochs`` becomes the method's ``epochs`` option when it has one, so the run's
-    params, its leaderboard label and its key all show the epochs really trained."""
+    """``--max-epochs`` and ``--max-steps`` become the method's ``epochs`` and ``steps``
+    options when it has them, so the run's params, its leaderboard label and its key all show
+    the budget really trained; ``--max-epochs`` alone ends the profile's step budget."""
+    changes: dict[str, Any] = {}
     if trainer.max_epochs and hasattr(method.options, "epochs"):
-        return method.with_options(epochs=trainer.max_epochs)
-    return method
+        changes["epochs"] = trainer.max_epochs
+    if hasattr(method.options, "steps") and (trainer.max_steps or trainer.max_epochs):
+        changes["steps"] = step_budget(method, trainer)
+    return method.with_options(**changes) if changes else method
 
 
 def checkpoint_key(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions) -> str:
@@ -232,15 +252,21 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
         tracker.describe_experiment(
             exp,
             f"shapebench trainings on {dataset.name}: one run per checkpoint key (method "
-            "options and code, training data, epochs, precision, devices, seed), with its loss "
-            "curves; the evaluations that use a checkpoint link to its run in their description.",
+            "options and code, training data, epochs or steps, precision, devices, seed), with "
+            "its loss curves; the evaluations that use a checkpoint link to its run in their "
+            "description.",
         )
         # We hold the key's lock: a RUNNING training of this key was left by a killed process.
         tracker.abandon_stale(exp, key, tag=CHECKPOINT_KEY_TAG)
         resumed = (workdir / LAST).exists()
         tags = training_tags(method.name, dataset.name, key, resumed=resumed)
+        steps = step_budget(method, trainer)
         label = method.name + (
-            f" epochs={method.options.epochs}" if hasattr(method.options, "epochs") else ""
+            f" steps={steps}"
+            if steps
+            else f" epochs={method.options.epochs}"
+            if hasattr(method.options, "epochs")
+            else ""
         )
         run_id = tracker.start_run(
             exp, f"train {label} on {dataset.name} seed={trainer.seed}", tags
