@@ -41,3 +41,48 @@ def test_official_test_time_sweep_reuses_the_default_trainings(tmp_path):
     assert {e.options.get("opt_steps") for e in entries} == {800}
     for entry in entries:
         assert key(entry.name, entry.options) == key(entry.name, {}), entry.name
+
+
+def test_data_scaling_sweep_is_a_cross_over_shared_test_objects(tmp_path):
+    from shapebench.sweeps.spec import pairs
+
+    spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/data-scaling.yaml")
+    settings = make_settings(workspace=str(tmp_path))
+    registry = get_registry()
+    trainer = profile_trainer(settings, 0)
+    runs = pairs(spec, sweep_methods(spec))
+    sizes = {ds.label: ds for ds in spec.datasets}
+    assert list(sizes) == ["66-shapes", "220-shapes", "660-shapes", "2200-shapes"]
+    # Six methods at every size, and four budgets x 3 at the largest: 6 x 4 + 12 runs.
+    assert len(runs) == 6 * 4 + 12
+    assert all(ds.label == "2200-shapes" for _, ds, _, m in runs if m.options)
+
+    def resolved(ds):
+        return resolve_dataset(registry, ds.name, settings, ds.data_root, ds.options)
+
+    # One set of test objects: a training-only option leaves the evaluation data as it is.
+    fingerprints = {resolved(ds).data_fingerprint() for ds in spec.datasets}
+    assert len(fingerprints) == 1
+    default = resolve_dataset(registry, "synthetic", settings, None, {})
+    keys = set()
+    for _, ds, _, m in runs:
+        method = resolve_method(registry, m.name, settings, m.options)
+        keys.add(checkpoint_key(apply_trainer(method, trainer), resolved(ds), trainer))
+    # msc-noopt shares msc's trainings: 5 families x (4 sizes + 2 budgets).
+    assert len(keys) == 5 * 6
+    # The smallest size is the profile's: its runs use the default (shipped) trainings.
+    msc = resolve_method(registry, "msc", settings, {})
+    assert checkpoint_key(msc, resolved(sizes["66-shapes"]), trainer) == checkpoint_key(
+        msc, default, trainer
+    )
+
+
+def test_a_method_entry_may_name_only_datasets_the_sweep_has(tmp_path):
+    from shapebench.api.errors import ConfigError
+
+    path = tmp_path / "s.yaml"
+    path.write_text(
+        "methods: [{name: gauss, datasets: [big]}]\ndatasets: [{name: synthetic, label: small}]\n"
+    )
+    with pytest.raises(ConfigError, match=r"names datasets \['big'\].*label: big"):
+        load_sweep(path)

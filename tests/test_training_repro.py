@@ -113,10 +113,11 @@ def test_training_ends_with_a_summary_on_stderr_and_in_mlflow(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "training plan: 4 shapes, 4 optimiser steps (2 epochs x 2 batches of 2 shapes" in err
     assert "s per optimiser step over 2 steps; about" in err and "for the 1 step left" in err
-    assert "training done" in err and "2 epochs" in err and "4 optimiser steps" in err
+    assert "training done" in err and "4 shapes, 2 epochs, 4 optimiser steps" in err
     assert "elbo" in err and "eikonal" in err
     metrics = client.get_run(run_id).data.metrics
     assert metrics["summary/epochs"] == 2 and metrics["summary/optimizer_steps"] == 4
+    assert metrics["summary/training_shapes"] == 4
     assert metrics["summary/wall_seconds"] > 0 and "summary/final_loss" in metrics
     assert client.get_run(run_id).data.tags["training_device"].startswith("cpu")
 

@@ -24,7 +24,7 @@ from shapebench.api.errors import ConfigError, DataNotFoundError
 from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench.hashing import stable_hash
 from shapebench_meshes.loading import MESH_SUFFIXES, load_mesh_file
-from shapebench_meshes.selection import split_ids
+from shapebench_meshes.selection import capped, split_ids
 
 ROOT_CATEGORY = "misc"
 
@@ -110,7 +110,10 @@ class MeshFolderDataset(MeshDataset):
         picked: list[str] = []
         for category in sorted({f.category for f in self.files.values()}):
             ids = [k for k, f in self.files.items() if f.category == category]
-            train, test = split_ids(ids, self.options.train_fraction, self.options.seed, "meshes")
+            o = self.options
+            train, test = split_ids(ids, o.train_fraction, o.seed, "meshes")
+            if o.max_train_per_category:
+                train = capped(train, o.max_train_per_category, o.seed, "meshes-train-cap")
             picked += train if split == TRAIN else test
         return self._refs(picked)
 

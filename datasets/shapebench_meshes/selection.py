@@ -16,6 +16,12 @@ def hash_order(ids: Iterable[str], seed: int, salt: str) -> list[str]:
     return sorted(ids, key=lambda i: (stable_seed(salt, seed, i), i))
 
 
+def capped(ids: Iterable[str], cap: int, seed: int, salt: str) -> list[str]:
+    """At most ``cap`` of ``ids``, the first by hash rank, sorted: a smaller cap picks a subset
+    of a larger one, so the training sets of a data-scaling sweep are nested."""
+    return sorted(hash_order(ids, seed, salt)[:cap])
+
+
 def split_ids(
     ids: Iterable[str], fraction: float, seed: int, salt: str
 ) -> tuple[list[str], list[str]]:

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from shapebench_meshes.loading import load_mesh_file
-from shapebench_meshes.selection import hash_order, split_ids
+from shapebench_meshes.selection import capped, hash_order, split_ids
 
 from shapebench.api.dataset import MeshDataset, MeshOptions, ObjectLoadError
 from shapebench.api.errors import ConfigError
@@ -151,6 +151,8 @@ class ShapeNetDataset(MeshDataset):
                 test, train = split_ids(ids, o.test_fraction, o.seed, "shapenet")
             if o.max_test_per_category:
                 test = sorted(hash_order(test, o.seed, "shapenet-cap")[: o.max_test_per_category])
+            if o.max_train_per_category:
+                train = capped(train, o.max_train_per_category, o.seed, "shapenet-train-cap")
             if cat.split == TRAINED:
                 table[TRAIN] += [ObjectRef(i, cat.name) for i in train]
                 table[TRAINED] += [ObjectRef(i, cat.name) for i in test]

@@ -240,8 +240,8 @@ def _variant(
     if training is not None:
         training = {k: v for k, v in training.items() if k != "seed"}
         base = training_identity(method, profile_trainer(settings, trainer.seed))
-        shown = {"epochs"} if hasattr(method.options, "epochs") else set()
-        training_overrides = {  # epochs shows as the method's own option when it has one
+        shown = {k for k in ("epochs", "steps") if hasattr(method.options, k)}
+        training_overrides = {  # the budget shows as the method's own option when it has one
             k: v for k, v in training.items() if k not in shown and base.get(k) != v
         }
         # The training data is part of the row (its fingerprint is in the key); a changed

@@ -19,7 +19,7 @@ from shapebench.config import Settings
 from shapebench.evaluate.orchestrate import resolve_request, seed_plans
 from shapebench.evaluate.runner import Runner, planned_cells
 from shapebench.store.tracking import Tracker, experiment_name
-from shapebench.sweeps.spec import SweepSpec, request, sweep_methods
+from shapebench.sweeps.spec import SweepSpec, pairs, request, sweep_methods
 from shapebench.train.training import checkpoint_dir, read_done
 
 
@@ -87,37 +87,36 @@ def plan_sweep(
     runner = Runner(tracker)
     out = SweepPlan()
     trainings: dict[str, TrainingTask] = {}
-    for di, ds in enumerate(spec.datasets):
-        for mi, m in enumerate(methods):
-            req = request(spec, m, ds, force=force, quiet=True)
-            try:
-                resolved = resolve_request(req, settings)
-            except ShapebenchError as exc:  # reported, and the rest of the sweep goes on
-                out.errors.append(f"{m.name} on {ds.name}: {exc.message}")
-                continue
-            for sp in seed_plans(req, resolved, settings, trainer_for_seed):
-                training = sp.checkpoint.get("key") if "training" in sp.checkpoint else None
-                needed = False  # some cell of this seed is missing
-                for split in sp.plan.splits:
-                    exp_id = tracker.experiment_id(experiment_name(ds.name, split), create=False)
-                    for seed, size, _cfg, key in planned_cells(sp.plan, split):
-                        cell = CellTask(
-                            mi, di, split, seed, size, key, sp.variant.label, ds.name, training
-                        )
-                        out.cells.append(cell)
-                        done = runner.finished(sp.plan, exp_id, key) if exp_id else None
-                        if done is not None:
-                            out.finished[key] = done.run_id
-                        else:
-                            needed = True
-                if training is None:
-                    continue
-                if read_done(checkpoint_dir(settings, sp.method, training)) is not None:
-                    out.trained.add(training)
-                elif needed:
-                    trainings.setdefault(
-                        training,
-                        TrainingTask(mi, di, sp.seed, training, sp.variant.label, ds.name),
+    for di, ds, mi, m in pairs(spec, methods):
+        req = request(spec, m, ds, force=force, quiet=True)
+        try:
+            resolved = resolve_request(req, settings)
+        except ShapebenchError as exc:  # reported, and the rest of the sweep goes on
+            out.errors.append(f"{m.name} on {ds.name}: {exc.message}")
+            continue
+        for sp in seed_plans(req, resolved, settings, trainer_for_seed):
+            training = sp.checkpoint.get("key") if "training" in sp.checkpoint else None
+            needed = False  # some cell of this seed is missing
+            for split in sp.plan.splits:
+                exp_id = tracker.experiment_id(experiment_name(ds.name, split), create=False)
+                for seed, size, _cfg, key in planned_cells(sp.plan, split):
+                    cell = CellTask(
+                        mi, di, split, seed, size, key, sp.variant.label, ds.name, training
                     )
+                    out.cells.append(cell)
+                    done = runner.finished(sp.plan, exp_id, key) if exp_id else None
+                    if done is not None:
+                        out.finished[key] = done.run_id
+                    else:
+                        needed = True
+            if training is None:
+                continue
+            if read_done(checkpoint_dir(settings, sp.method, training)) is not None:
+                out.trained.add(training)
+            elif needed:
+                trainings.setdefault(
+                    training,
+                    TrainingTask(mi, di, sp.seed, training, sp.variant.label, ds.name),
+                )
     out.trainings = list(trainings.values())
     return out

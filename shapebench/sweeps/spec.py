@@ -23,10 +23,16 @@ from shapebench.store.tracking import Tracker
 
 @dataclass
 class Entry:
+    """A method or dataset of a sweep. A dataset's ``label`` names it for a method entry's
+    ``datasets``: the labels (or names) of the only datasets that method runs on, so that a
+    sweep can be a cross (every method at every training-set size, and the longer budgets at the
+    largest size only) instead of a full grid."""
+
     name: str
     options: dict[str, Any] = field(default_factory=dict)
     data_root: str | None = None
     label: str | None = None
+    datasets: list[str] | None = None
 
 
 @dataclass
@@ -54,17 +60,40 @@ def _entries(value: Any, key: str, path: Path) -> list[Entry]:
         if isinstance(item, str):
             out.append(Entry(item))
         elif isinstance(item, dict) and "name" in item:
+            unknown = set(item) - {"name", "options", "data_root", "label", "datasets"}
+            if unknown:
+                raise ConfigError(f"{path}: unknown keys {sorted(unknown)} in '{key}' entry {item}")
+            only = item.get("datasets")
+            if isinstance(only, str):
+                only = [only]
+            if only is not None and (key != "methods" or not isinstance(only, list) or not only):
+                raise ConfigError(
+                    f"{path}: 'datasets' of a method entry is a non-empty list of dataset labels "
+                    f"(got {only!r} in '{key}')"
+                )
             out.append(
                 Entry(
                     item["name"],
                     dict(item.get("options") or {}),
                     item.get("data_root"),
                     item.get("label"),
+                    [str(d) for d in only] if only is not None else None,
                 )
             )
         else:
             raise ConfigError(f"{path}: each of '{key}' is a name or {{name: ..., options: ...}}")
     return out
+
+
+def pairs(spec: SweepSpec, methods: list[Entry]) -> list[tuple[int, Entry, int, Entry]]:
+    """The (dataset index, dataset, method index, method) runs of the sweep, datasets outer: the
+    full grid, less the datasets a method entry's ``datasets`` leaves out."""
+    return [
+        (di, ds, mi, m)
+        for di, ds in enumerate(spec.datasets)
+        for mi, m in enumerate(methods)
+        if m.datasets is None or ds.label in m.datasets or ds.name in m.datasets
+    ]
 
 
 def load_sweep(path: Path) -> SweepSpec:
@@ -94,7 +123,7 @@ def load_sweep(path: Path) -> SweepSpec:
     seeds = data.get("seeds", [0])
     if not all(isinstance(c, int) for c in contexts) or not all(isinstance(s, int) for s in seeds):
         raise ConfigError(f"{path}: 'contexts' and 'seeds' must be lists of integers")
-    return SweepSpec(
+    spec = SweepSpec(
         name=data.get("name", path.stem),
         methods=methods,
         datasets=_entries(data["datasets"], "datasets", path),
@@ -109,6 +138,17 @@ def load_sweep(path: Path) -> SweepSpec:
         ),
         launcher=_launcher_block(data.get("launcher"), path),
     )
+    if methods != "all":
+        known = {d.label for d in spec.datasets if d.label} | {d.name for d in spec.datasets}
+        for m in methods:
+            missing = sorted(set(m.datasets or ()) - known)
+            if missing:
+                raise ConfigError(
+                    f"{path}: method {m.name!r} names datasets {missing} that the sweep does not "
+                    f"have; give a dataset entry 'label: {missing[0]}' (labels and names: "
+                    f"{sorted(known)})"
+                )
+    return spec
 
 
 def _launcher_block(value: Any, path: Path) -> dict[str, Any]:
@@ -186,16 +226,15 @@ def run_sweep(
         methods = methods[k:] + methods[:k]
     tracker = Tracker(settings)  # so does an unreachable server
     failures: list[str] = []
-    for ds in spec.datasets:
-        for m in methods:
-            try:
-                yield evaluate(
-                    request(spec, m, ds, force, quiet, retrain), settings, trainer_for_seed, tracker
-                )
-            except ShapebenchError as exc:  # one method failing must not stop the others
-                failures.append(f"{m.name} on {ds.name}: {exc.message}")
-                if on_error is not None:
-                    on_error(m.name, ds.name, exc)
+    for _, ds, _, m in pairs(spec, methods):
+        try:
+            yield evaluate(
+                request(spec, m, ds, force, quiet, retrain), settings, trainer_for_seed, tracker
+            )
+        except ShapebenchError as exc:  # one method failing must not stop the others
+            failures.append(f"{m.name} on {ds.name}: {exc.message}")
+            if on_error is not None:
+                on_error(m.name, ds.name, exc)
     if failures:
         raise ShapebenchError(
             f"{len(failures)} of the sweep's method x dataset runs failed: " + "; ".join(failures),
@@ -216,7 +255,8 @@ def sweep_size(spec: SweepSpec, settings: Settings) -> int:
         except ShapebenchError:
             continue
         splits = spec.splits or list(dataset.eval_splits)
-        total += len(methods) * len(splits) * len(set(spec.contexts)) * len(spec.seeds)
+        runs = sum(1 for _, d, _, _ in pairs(spec, methods) if d is ds)
+        total += runs * len(splits) * len(set(spec.contexts)) * len(spec.seeds)
     return total
 
 

@@ -742,11 +742,14 @@ def training_summary(trainer: pl.Trainer, seconds: float) -> dict[str, Any]:
 
     # Device-hours: every device is held for the whole wall time (what a cluster bills).
     devices = int(trainer.num_devices * trainer.num_nodes)
+    data = trainer.datamodule
     return {
         "wall_seconds": seconds,
         "device": kind,
         "devices": devices,
         "device_hours": device_hours(seconds, devices),
+        # The training-set size: the x axis of a data-scaling figure.
+        "training_shapes": len(data.refs) if isinstance(data, ShapeDataModule) else None,
         "epochs": int(trainer.current_epoch),
         "optimizer_steps": int(trainer.global_step),
         "final": terms,
@@ -760,9 +763,11 @@ def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = Fa
         final = ", ".join(f"{k.removeprefix('train/')} {v:.4g}" for k, v in terms)
         hours = summary.get("device_hours")
         spent = f" ({hours:.3g} device-hours)" if hours is not None else ""
+        shapes = summary.get("training_shapes")
         print(
             f"training done in {summary['wall_seconds']:.1f} s on {summary['device']}{spent}: "
-            f"{summary['epochs']} epochs, {summary['optimizer_steps']} optimiser steps; "
+            + (f"{shapes} shapes, " if shapes else "")
+            + f"{summary['epochs']} epochs, {summary['optimizer_steps']} optimiser steps; "
             f"final {final or 'no logged terms'}",
             file=sys.stderr,
         )
@@ -774,6 +779,8 @@ def report_summary(summary: dict[str, Any], logger: Any | None, quiet: bool = Fa
         "summary/epochs": float(summary["epochs"]),
         "summary/optimizer_steps": float(summary["optimizer_steps"]),
     }
+    if summary.get("training_shapes"):
+        metrics["summary/training_shapes"] = float(summary["training_shapes"])
     metrics.update(
         {f"summary/final_{k.removeprefix('train/')}": v for k, v in summary["final"].items()}
     )

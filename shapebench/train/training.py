@@ -376,7 +376,7 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
     tracker.log_params(run_id, _training_params(method, dataset, trainer))
     metrics = {
         f"summary/{k}": float(summary[k])
-        for k in ("wall_seconds", "device_hours", "epochs", "optimizer_steps")
+        for k in ("wall_seconds", "device_hours", "training_shapes", "epochs", "optimizer_steps")
         if isinstance(summary.get(k), (int, float))
     }
     metrics.update(
