@@ -105,6 +105,60 @@ def test_pareto_sizes_markers_by_training_device_hours():
     assert any("no training" in t.get_text() for t in ax.texts)
 
 
+def _scaling_board(sizes: dict[str, tuple[int, int]], display: dict[str, str]):
+    """A board whose rows were trained at (shapes, steps); the more shapes, the lower."""
+    scored = _scored({v: (400 / shapes**0.5, 0.5) for v, (shapes, _) in sizes.items()})
+    rows = [SimpleNamespace(variant=v, label=v, display=display[v]) for v in sizes]
+    costs = pd.DataFrame(
+        [
+            {"variant": v, "train_shapes": float(a), "train_steps": float(b)}
+            for v, (a, b) in sizes.items()
+        ]
+        + [{"variant": "gauss", "train_shapes": math.nan, "train_steps": math.nan}]
+    )
+    rows.append(SimpleNamespace(variant="gauss", label="gauss", display="Gauss"))
+    scored = pd.concat([scored, _scored({"gauss": (20, 1)})])
+    return SimpleNamespace(rows=rows, costs=costs, scored=scored, contexts=[50, 100, 300, 1000])
+
+
+def test_scaling_curve_draws_each_method_against_its_training_shapes():
+    sizes = {
+        "msc": (66, 2700),
+        "msc[tpc=20]": (220, 2700),
+        "msc[tpc=200]": (2200, 2700),
+        "msc[steps=10800,tpc=200]": (2200, 10800),
+        "pcn": (66, 900),
+        "pcn[tpc=200]": (2200, 900),
+    }
+    display = {v: "MSC" if v.startswith("msc") else "PCN" for v in sizes}
+    fig = figures.scaling_curve(_scaling_board(sizes, display), "chamfer", "t")
+    assert [ax.get_title() for ax in fig.axes] == ["50 context points", "1000 context points"]
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log"
+    assert [int(t) for t in ax.get_xticks()] == [66, 220, 2200]
+    lines = {line.get_label(): line for line in ax.get_lines() if len(line.get_xdata()) > 1}
+    assert set(lines) == {"MSC", "PCN"}  # gauss trains nothing: no line
+    assert list(lines["MSC"].get_xdata()) == [66, 220, 2200]
+    ys = lines["MSC"].get_ydata()
+    assert ys[0] > ys[1] > ys[2]  # the data's trend, drawn in order of size
+    bands = [c for c in ax.collections if isinstance(c, PolyCollection)]
+    assert len(bands) == 2
+    # The longer budget at one size is a point with an error bar, named by its steps.
+    labels = ax.get_legend_handles_labels()[1]
+    assert "MSC, 10800 steps" in labels
+    png = figures.io.BytesIO()
+    fig.savefig(png, format="png")
+    assert not is_blank(png.getvalue())
+
+
+def test_no_scaling_curve_without_two_training_sizes():
+    board = _scaling_board(
+        {"msc": (66, 2700), "msc[steps=10800]": (66, 10800)},
+        {"msc": "MSC", "msc[steps=10800]": "MSC"},
+    )
+    assert figures.scaling_curve(board, "chamfer", "t") is None
+
+
 def test_save_writes_png_and_svg_and_refuses_a_blank_figure(tmp_path):
     scored = _scored({"a": (10, 1), "b": (12, 1)})
     fig = figures.context_curve(scored, ["a", "b"], "y", "t")
@@ -157,6 +211,8 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
         "summary/wall_seconds": 900.0,
         "summary/device_hours": 1.0,
         "summary/epochs": 10.0,
+        "summary/optimizer_steps": 90.0,
+        "summary/training_shapes": 66.0,
         "summary/final_loss": 0.25,
     }.items():
         client.log_metric(new, key, value)
@@ -178,6 +234,8 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
     assert costs.loc["msc", "train_device_hours"] == pytest.approx(1.0)
     assert costs.loc["msc", "train_device"] == "cuda x4 (NVIDIA H100)"
     assert costs.loc["old", "train_device_hours"] == pytest.approx(2.0)
+    assert costs.loc["msc", "train_steps"] == 90 and costs.loc["msc", "train_shapes"] == 66
+    assert math.isnan(costs.loc["old", "train_shapes"])  # logged before it was recorded
     assert math.isnan(costs.loc["gauss", "train_device_hours"])
     assert costs.loc["gauss", "seconds_per_object"] == pytest.approx(0.02)
     assert describe_training(costs.loc["msc"]) == (

@@ -1,5 +1,5 @@
-"""What a leaderboard row costs: training (wall time, device, device-hours, epochs, final loss)
-and evaluation (seconds per object at test time).
+"""What a leaderboard row costs: training (wall time, device, device-hours, epochs, optimiser
+steps, training shapes, final loss) and evaluation (seconds per object at test time).
 
 Training costs are read from the MLflow training run each cell names (tag ``training_run_id``),
 where :func:`shapebench.train.lightning_fit.report_summary` logged them (``summary/*`` metrics, tag
@@ -27,6 +27,8 @@ COST_COLUMNS = [
     "train_wall_seconds",
     "train_device",
     "train_epochs",
+    "train_steps",
+    "train_shapes",
     "train_final_loss",
     "train_weights",
     "trainings",
@@ -42,6 +44,9 @@ class TrainingCost:
     device: str = ""
     device_hours: float = math.nan
     epochs: float = math.nan
+    steps: float = math.nan
+    #: Training objects (logged since trainings record it; NaN before).
+    shapes: float = math.nan
     final_loss: float = math.nan
     #: "reference" (shipped weights, see shapebench.train.references) or "local".
     weights: str = "local"
@@ -59,6 +64,8 @@ class TrainingCost:
             device,
             float(hours),
             float(metrics.get("summary/epochs", math.nan)),
+            float(metrics.get("summary/optimizer_steps", math.nan)),
+            float(metrics.get("summary/training_shapes", math.nan)),
             float(metrics.get("summary/final_loss", math.nan)),
             "reference" if tags.get(REFERENCE_TAG) else "local",
         )
@@ -97,6 +104,8 @@ def row_costs(tracker: Tracker, runs: pd.DataFrame, per_object: pd.DataFrame) ->
                 train_wall_seconds=float(table["wall_seconds"].mean()),
                 train_device=", ".join(sorted(set(table["device"]) - {""})),
                 train_epochs=float(table["epochs"].mean()),
+                train_steps=float(table["steps"].mean()),
+                train_shapes=float(table["shapes"].mean()),
                 train_final_loss=float(table["final_loss"].mean()),
                 train_weights=", ".join(sorted(set(table["weights"]))),
             )

@@ -5,6 +5,10 @@
   values, failure rule included, that the table's mean ± std summarise).
 * :func:`pareto`: the metric at one context size (50 points when the table has it) against
   test-time seconds per object, marker area by training device-hours (hollow: no training).
+* :func:`scaling_curve`: the metric at the smallest and the largest context size against the
+  number of training shapes (log x axis), one line per method and step budget, with the same
+  bootstrap band; drawn when some method was trained at two or more training-set sizes (the
+  data-scaling sweep, ``configs/sweeps/data-scaling.yaml``).
 
 :func:`write_board_figures` writes both beside the leaderboard as PNG and SVG; they are logged to
 the table's MLflow run by :func:`log_board_artifacts`.
@@ -160,6 +164,86 @@ def pareto(points: pd.DataFrame, xlabel: str, ylabel: str, title: str):
     return fig
 
 
+def scaling_points(board: Board) -> pd.DataFrame:
+    """Per trained row: its method's display name, its training shapes and optimiser steps (from
+    its training runs) and its label; rows whose trainings did not record both are left out."""
+    if board.costs is None or "train_shapes" not in board.costs:
+        return pd.DataFrame(columns=["variant", "label", "display", "shapes", "steps"])
+    costs = board.costs.set_index("variant")
+    rows = []
+    for row in board.rows:
+        if row.variant not in costs.index:
+            continue
+        shapes, steps = costs.loc[row.variant, ["train_shapes", "train_steps"]]
+        if np.isfinite(shapes) and np.isfinite(steps):
+            rows.append(
+                {
+                    "variant": row.variant,
+                    "label": row.label,
+                    "display": row.display,
+                    "shapes": int(round(shapes)),
+                    "steps": int(round(steps)),
+                }
+            )
+    return pd.DataFrame(rows, columns=["variant", "label", "display", "shapes", "steps"])
+
+
+def scaling_curve(board: Board, ylabel: str, title: str, scale: float = 1.0):
+    """The metric against training shapes at the board's smallest and largest context sizes
+    (two panels), one line per (method, step budget), with its bootstrap band; a budget trained
+    at one size only (the data-scaling sweep's 4x and 16x) is a point with an error bar. None
+    when no method was trained at two sizes or more."""
+    points = scaling_points(board)
+    if points.empty or points.groupby("display")["shapes"].nunique().max() < 2:
+        return None
+    scored = board.scored[board.scored["variant"].isin(points["variant"])]
+    table = curve_table(scored, scale).merge(
+        points[["label", "display", "shapes", "steps"]], on="label"
+    )
+    contexts = sorted({min(board.contexts), max(board.contexts)})
+    displays = list(dict.fromkeys(points["display"]))
+    cmap = _colours(len(displays))
+    fig = _new_figure(11, 4.5)
+    axes = [fig.add_subplot(1, len(contexts), i + 1) for i in range(len(contexts))]
+    for ax, ctx in zip(axes, contexts, strict=True):
+        at = table[table["context"] == ctx]
+        for i, display in enumerate(displays):
+            mine = at[at["display"] == display]
+            # The budget trained at the most sizes is the line; the others are points.
+            budgets = mine.groupby("steps")["shapes"].nunique().sort_values(ascending=False)
+            for rank, steps in enumerate(budgets.index):
+                t = mine[mine["steps"] == steps].sort_values("shapes")
+                name = display if rank == 0 else f"{display}, {steps} steps"
+                style = dict(color=cmap[i], marker="os^dv"[rank % 5], ms=5)
+                if len(t) > 1:
+                    ax.plot(t["shapes"], t["mean"], label=name, **style)
+                    ax.fill_between(t["shapes"], t["low"], t["high"], color=cmap[i], alpha=0.15)
+                else:
+                    err = [t["mean"] - t["low"], t["high"] - t["mean"]]
+                    ax.errorbar(t["shapes"], t["mean"], yerr=err, ls="none", label=name, **style)
+        ax.set_xscale("log")
+        sizes = sorted(table["shapes"].unique().tolist())
+        ax.set_xticks(sizes)
+        ax.set_xticklabels([str(s) for s in sizes])
+        ax.minorticks_off()
+        ax.set_xlabel("training shapes (log scale)")
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{ctx} context points", fontsize=10)
+        ax.grid(True, alpha=0.3)
+    axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    fig.suptitle(title, fontsize=10)
+    fig.text(
+        0.01,
+        0.01,
+        f"band / bar: {LEVEL:.0%} bootstrap interval of the mean over objects; "
+        "lines: one step budget at every size",
+        fontsize=7,
+        color="#666666",
+    )
+    fig.subplots_adjust(left=0.06, right=0.8, bottom=0.14, top=0.88, wspace=0.25)
+    return fig
+
+
 def _wrap(label: str, width: int = 28) -> str:
     """A variant label over several lines (``msc[epochs=1,...]`` can be very long)."""
     import textwrap
@@ -216,7 +300,8 @@ def pareto_points(board: Board) -> tuple[pd.DataFrame, int]:
 
 def board_figures(board: Board) -> dict[str, Any]:
     """``{"chamfer": Figure, "pareto": Figure}`` of a built leaderboard (the first named for the
-    dataset's primary metric, Chamfer on every built-in dataset)."""
+    dataset's primary metric, Chamfer on every built-in dataset), and ``"scaling"`` when some
+    method was trained at two training-set sizes or more."""
     from shapebench.api.metric import MetricCard
 
     scale = board.scale
@@ -241,7 +326,13 @@ def board_figures(board: Board) -> dict[str, Any]:
         f"{board.metric}{unit} at {ctx} points",
         f"{where}: accuracy vs cost ({frame} frame)",
     )
-    return {"chamfer": curve, "pareto": front}
+    figures = {"chamfer": curve, "pareto": front}
+    scaling = scaling_curve(
+        board, ylabel, f"{where}: {board.metric} vs training shapes (data scaling)", scale
+    )
+    if scaling is not None:
+        figures["scaling"] = scaling
+    return figures
 
 
 def figure_stem(md: Path, name: str) -> Path:
