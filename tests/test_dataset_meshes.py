@@ -106,6 +106,26 @@ def test_train_fraction_splits_each_category_deterministically(tmp_path):
     assert other.fingerprint() != dataset(root, tmp_path / "c", train_fraction=0.25).fingerprint()
 
 
+def test_max_train_per_category_caps_training_objects_in_nested_sets(tmp_path):
+    import trimesh
+
+    root = tmp_path / "data"
+    for i in range(10):
+        (root / "boxes").mkdir(parents=True, exist_ok=True)
+        trimesh.creation.box((0.2 + 0.05 * i, 0.3, 0.4)).export(root / "boxes" / f"b{i}.obj")
+    every = dataset(root, tmp_path / "cache", train_fraction=0.8)
+    assert len(every.objects(TRAIN)) == 8
+    two = dataset(root, tmp_path / "cache", train_fraction=0.8, max_train_per_category=2)
+    five = dataset(root, tmp_path / "cache", train_fraction=0.8, max_train_per_category=5)
+    small, large = {r.id for r in two.objects(TRAIN)}, {r.id for r in five.objects(TRAIN)}
+    assert len(small) == 2 and len(large) == 5 and small < large  # nested
+    assert large < {r.id for r in every.objects(TRAIN)}
+    # The test objects, and the evaluation data, do not move: a training-only option.
+    assert two.objects(TRAINED) == every.objects(TRAINED)
+    assert two.data_fingerprint() == every.data_fingerprint()
+    assert two.training_fingerprint() != every.training_fingerprint()
+
+
 @needs_shared
 def test_fingerprint_follows_the_files_and_the_dataset_pickles(tmp_path):
     root = make_folder(tmp_path / "data")

@@ -24,7 +24,7 @@ from shapebench.api.errors import ConfigError, DataNotFoundError
 from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
 from shapebench.hashing import stable_hash
 from shapebench_meshes.loading import MESH_SUFFIXES, load_mesh_file
-from shapebench_meshes.selection import capped, split_ids
+from shapebench_meshes.selection import capped, max_train_option, split_ids
 
 ROOT_CATEGORY = "misc"
 
@@ -41,6 +41,7 @@ class MeshFolderOptions(MeshOptions):
             "selection": True,
         },
     )
+    max_train_per_category: int = max_train_option()
 
 
 @dataclass(frozen=True)

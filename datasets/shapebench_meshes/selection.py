@@ -7,6 +7,8 @@ or removing one file moves only that file: every other object stays on its side 
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import field
+from typing import Any
 
 from shapebench.hashing import stable_seed
 
@@ -14,6 +16,19 @@ from shapebench.hashing import stable_seed
 def hash_order(ids: Iterable[str], seed: int, salt: str) -> list[str]:
     """``ids`` in a pseudo-random order that depends only on (salt, seed, id)."""
     return sorted(ids, key=lambda i: (stable_seed(salt, seed, i), i))
+
+
+def max_train_option() -> Any:
+    """The ``max_train_per_category`` field of a mesh dataset with a training split: the
+    training-set size axis of a data-scaling sweep."""
+    return field(
+        default=0,
+        metadata={
+            "help": "train on at most this many objects per category (0: all), picked by the "
+            "seed; a smaller cap picks a subset of a larger one",
+            "training_only": True,
+        },
+    )
 
 
 def capped(ids: Iterable[str], cap: int, seed: int, salt: str) -> list[str]:

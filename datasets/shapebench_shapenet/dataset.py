@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from shapebench_meshes.loading import load_mesh_file
-from shapebench_meshes.selection import capped, hash_order, split_ids
+from shapebench_meshes.selection import capped, hash_order, max_train_option, split_ids
 
 from shapebench.api.dataset import MeshDataset, MeshOptions, ObjectLoadError
 from shapebench.api.errors import ConfigError
@@ -64,6 +64,7 @@ class ShapeNetOptions(MeshOptions):
             "selection": True,
         },
     )
+    max_train_per_category: int = max_train_option()
 
 
 class ShapeNetDataset(MeshDataset):

@@ -185,14 +185,6 @@ class MeshOptions:
         default=16_384,
         metadata={"help": "complete-surface points per object (PCN: 16384)", "training_only": True},
     )
-    max_train_per_category: int = field(
-        default=0,
-        metadata={
-            "help": "train on at most this many objects per category (0: all), picked by the "
-            "seed; a smaller cap picks a subset of a larger one (the training-set size axis)",
-            "training_only": True,
-        },
-    )
 
 
 class MeshDataset(Dataset):

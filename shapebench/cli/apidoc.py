@@ -215,7 +215,8 @@ def _options() -> list[str]:
         "Conventions: set the class attribute `Options` of a method or dataset to a frozen "
         "dataclass whose fields all have defaults (`NoOptions` when there are none). Field types "
         "are checked and coerced: `int`, `float` (an integer is accepted), `str`, `bool`, "
-        "`X | None`, `list`/`tuple`. A method option named `epochs` receives `--max-epochs`. "
+        "`X | None`, `list`/`tuple`. A method option named `epochs` receives `--max-epochs`, "
+        "one named `steps` `--max-steps`. "
         "Each field's `metadata` may hold:",
         "",
         "| key | options of | effect |",
