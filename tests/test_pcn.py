@@ -77,3 +77,21 @@ def test_training_lowers_the_loss_and_completion_beats_the_raw_context():
     completed = metric.compute(Completion(fine[0].numpy()), gt, None)
     raw = metric.compute(Completion(context[0].numpy()), gt, None)
     assert completed < raw
+
+
+def test_sinkhorn_kernel_iterations_equal_the_log_domain_ones_and_far_sets_fall_back():
+    from shapebench_pcn.losses import _sinkhorn_plan, _sinkhorn_plan_log
+
+    gen = torch.Generator().manual_seed(0)
+    a = torch.rand(3, 64, 3, generator=gen) - 0.5
+    b = torch.rand(3, 64, 3, generator=gen) - 0.5
+    cost = torch.cdist(a, b)
+    fast, log = _sinkhorn_plan(cost, 0.01, 100), _sinkhorn_plan_log(cost, 0.01, 100)
+    assert fast.dtype == torch.float32
+    assert torch.allclose(fast, log, rtol=1e-4, atol=1e-9)
+    assert torch.allclose(fast.sum(dim=(1, 2)), torch.ones(3))  # a transport plan
+    # Sets 20 apart: exp(-cost / eps) underflows even in float64; the log domain takes over.
+    far = torch.cdist(a, b + 20.0)
+    plan = _sinkhorn_plan(far, 0.01, 100)
+    assert torch.isfinite(plan).all()
+    assert torch.allclose(plan.sum(dim=(1, 2)), torch.ones(3), atol=1e-4)
