@@ -261,7 +261,11 @@ def sweep(
                  tracking: per-job, methods: {gauss: {gpus_per_node: 0}}}
 
     A method entry may carry a leaderboard label: {name: gauss, options: {sigma: 0.05},
-    label: gauss-wide}. Exits with status 1 when every object of some cell failed.
+    label: gauss-wide}, and run on some datasets only: {name: msc, options: {steps: 10800},
+    datasets: [big]} pairs it with the dataset entries labelled big ({name: synthetic, label:
+    big, options: {train_per_category: 200}}), so that a sweep can be a cross rather than a full
+    grid (configs/sweeps/data-scaling.yaml). Exits with status 1 when every object of some cell
+    failed.
 
     --launcher local -j N runs the cells in N worker processes (logs under the workspace's
     logs/), each cell once and each training once, then prints the summaries.
