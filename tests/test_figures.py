@@ -239,7 +239,7 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
     assert math.isnan(costs.loc["gauss", "train_device_hours"])
     assert costs.loc["gauss", "seconds_per_object"] == pytest.approx(0.02)
     assert describe_training(costs.loc["msc"]) == (
-        "1 device-h (900 s on cuda x4 (NVIDIA H100)), 10 epochs, loss 0.25"
+        "1 device-h (900 s on cuda x4 (NVIDIA H100)), 90 steps (10 epochs), loss 0.25"
     )
     assert describe_training(costs.loc["gauss"]) == "–"
 

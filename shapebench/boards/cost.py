@@ -117,16 +117,21 @@ def row_costs(tracker: Tracker, runs: pd.DataFrame, per_object: pd.DataFrame) ->
 
 
 def describe_training(cost: pd.Series | dict, hours: bool = True) -> str:
-    """``0.05 device-h (181 s on cpu x1), 100 epochs, loss 0.0216`` (without the device-hours
-    when ``hours`` is false; ``, reference weights`` when the weights were shipped), or ``–``
-    when it did not train (or its training run is gone)."""
+    """``0.05 device-h (181 s on cpu x1), 900 steps (100 epochs), loss 0.0216`` (without the
+    device-hours when ``hours`` is false; ``, reference weights`` when the weights were shipped),
+    or ``–`` when it did not train (or its training run is gone)."""
     dh = cost.get("train_device_hours", math.nan)
     if dh is None or not np.isfinite(dh):
         return "–"
     where = f"{cost['train_wall_seconds']:.0f} s on {cost['train_device']}"
     text = f"{dh:.3g} device-h ({where})" if hours else where
-    if np.isfinite(cost.get("train_epochs", math.nan)):
-        text += f", {cost['train_epochs']:.0f} epochs"
+    steps, epochs = cost.get("train_steps", math.nan), cost.get("train_epochs", math.nan)
+    if steps is not None and np.isfinite(steps):  # the budget, since budgets are in steps
+        text += f", {steps:.0f} steps"
+        if np.isfinite(epochs):
+            text += f" ({epochs:.0f} epochs)"
+    elif np.isfinite(epochs):
+        text += f", {epochs:.0f} epochs"
     if np.isfinite(cost.get("train_final_loss", math.nan)):
         text += f", loss {cost['train_final_loss']:.3g}"
     if "reference" in str(cost.get("train_weights") or ""):

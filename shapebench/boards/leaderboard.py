@@ -485,7 +485,8 @@ def render_markdown(
             "",
             "**Cost**: test time is the method's wall time per successfully completed object "
             "(mean over the row's cells); training is per training run (mean over the row's "
-            "seeds): device-hours = devices x wall time, with the device, epochs and final loss. "
+            "seeds): device-hours = devices x wall time, with the device, the optimiser steps "
+            "(and the epochs they made) and the final loss. "
             '"reference weights": the row used the checkpoint shipped with shapebench for its '
             "key (trained once, elsewhere; the cost is that training's), not a local training.",
         ]
