@@ -182,6 +182,7 @@ def test_training_summary_counts_device_hours_and_prints_them(capsys):
         callback_metrics={"train/loss": 0.5, "val/x": 1.0},
         current_epoch=4,
         global_step=40,
+        datamodule=None,  # a Trainer always has one (None when fit was given no data module)
     )
     summary = training_summary(trainer, 1800.0)
     assert summary["devices"] == 6 and summary["device_hours"] == pytest.approx(3.0)
