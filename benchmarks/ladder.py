@@ -204,6 +204,8 @@ def run_rung(resolved, dataset: Dataset, rung: str, args, workdir: Path) -> Rung
     subset = Subset(dataset, refs)
     epochs = epochs_for(args.steps, len(refs), resolved.options.batch_shapes)
     options = replace(resolved.options, epochs=epochs)
+    if hasattr(options, "steps"):  # a step budget (the quick profile's) is replaced by --steps
+        options = replace(options, steps=args.steps)
     pool = refs if args.eval_split == TRAIN else dataset.objects(args.eval_split)
     objects = [dataset.load(r) for r in pool[: args.eval_objects]]
     contexts = [context_of(d, args.context, args.seed) for d in objects]

@@ -102,6 +102,10 @@ def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
     assert apply_trainer(method, TrainerOptions(max_steps=50)).options.steps == 50
     assert apply_trainer(method, TrainerOptions(max_epochs=3)).options.steps == 0
     assert key(max_epochs=3, max_steps=50) != key(max_steps=50)
+    # So does an epochs option given over the profile (-O epochs=3, a sweep's options).
+    assert resolve_method(reg, "pcn", settings, {"epochs": 3}).options.steps == 0
+    assert resolve_method(reg, "pcn", settings, {"epochs": 3, "steps": 50}).options.steps == 50
+    assert resolve_method(reg, "pcn", settings, {"lr": 0.01}).options.steps == 900
 
 
 def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):

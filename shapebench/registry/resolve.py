@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -108,8 +108,14 @@ def resolve_method(
     cls = reg.load()
     values = plugin_overrides("method", name, settings.profile)
     base = opts.build(cls.Options, values, f"method {name!r}")
+    budgets = {f.name for f in fields(cls.Options)} >= {"epochs", "steps"}
     for o in overrides:
-        values.update(o or {})
+        o = o or {}
+        values.update(o)
+        if budgets and "epochs" in o and "steps" not in o:
+            # An epoch budget given over a step budget (the quick profile's) replaces it, as
+            # --max-epochs does: -O epochs=5 trains 5 epochs, not the profile's 2700 steps.
+            values["steps"] = 0
     return ResolvedMethod(reg, cls, opts.build(cls.Options, values, f"method {name!r}"), base)
 
 
