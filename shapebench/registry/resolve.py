@@ -80,8 +80,6 @@ class ResolvedMethod:
 
     def training_config(self) -> dict[str, Any]:
         """What determines a training's result: options that only affect completion are left out."""
-        from dataclasses import fields
-
         effective = self.effective_options()
         opts_dict = {
             f.name: getattr(effective, f.name)
