@@ -21,9 +21,11 @@ if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
   pip_ install -q "torch==2.13.0"
 fi
 CONSTRAINTS="$VENV/shapebench-constraints.txt"
+# Read without importing torch: a fresh environment has no numpy yet, and torch's import then
+# warns "Failed to initialize NumPy".
 "$VENV/bin/python" - > "$CONSTRAINTS" <<'PY'
-import torch
-print(f"torch=={torch.__version__}")
+from importlib.metadata import version
+print(f"torch=={version('torch')}")
 PY
 echo "[setup] keeping $(cat "$CONSTRAINTS")"
 pip_ install -q -c "$CONSTRAINTS" -e ".[test]"

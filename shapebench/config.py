@@ -9,14 +9,17 @@ Option values are resolved in this order, later ones winning:
 4. the sweep file's per-entry options (``shapebench sweep``);
 5. command-line flags (``-O key=value`` for the method, ``-D key=value`` for the dataset).
 
-``configs/`` is looked up in ``$SHAPEBENCH_CONFIG_DIR``, then ``./configs``, then the source
-checkout shapebench was installed from.
+``configs/`` is looked up in ``$SHAPEBENCH_CONFIG_DIR``, then ``./configs`` (``shapebench init``
+writes an editable copy there), then the source checkout of an editable install, then the copy
+every wheel carries (``shapebench/_configs``, made from the checkout's ``configs/`` at build
+time: setup.py). A file found earlier wins, one file at a time.
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -28,18 +31,56 @@ DEFAULT_PROFILE = "quick"
 WORKSPACE_DIRNAME = "shapebench-runs"
 
 
+def builtin_config_dir() -> Path | None:
+    """The configs shapebench was installed with: the checkout's ``configs/`` for an editable
+    install (a folder beside the package with a pyproject.toml), else the wheel's package data."""
+    checkout = Path(__file__).resolve().parents[1]
+    if (checkout / "pyproject.toml").is_file() and (checkout / "configs").is_dir():
+        return checkout / "configs"
+    packaged = Path(str(resources.files("shapebench") / "_configs"))
+    return packaged if packaged.is_dir() else None
+
+
 def config_dirs() -> list[Path]:
     dirs = []
     if os.environ.get("SHAPEBENCH_CONFIG_DIR"):
         dirs.append(Path(os.environ["SHAPEBENCH_CONFIG_DIR"]))
     dirs.append(Path.cwd() / "configs")
-    dirs.append(Path(__file__).resolve().parents[1] / "configs")
+    if (builtin := builtin_config_dir()) is not None:
+        dirs.append(builtin)
     seen, out = set(), []
     for d in dirs:
         if d.is_dir() and d.resolve() not in seen:
             seen.add(d.resolve())
             out.append(d)
     return out
+
+
+#: What ``shapebench init`` copies: every profile and the example sweep, relative to a config dir.
+INIT_FILES = ("profiles/*.yaml", "sweeps/default.yaml")
+
+
+def write_editable_configs(dest: Path, overwrite: bool = False) -> tuple[list[Path], list[Path]]:
+    """Copy the built-in profiles and example sweep into ``dest/configs``; the (written, kept)
+    paths. A file already there is kept unless ``overwrite``: it may hold the user's edits."""
+    source = builtin_config_dir()
+    if source is None:
+        raise ConfigError(
+            "this shapebench installation carries no built-in configs",
+            hint="reinstall it from a wheel or a checkout (pip install shapebench)",
+        )
+    written: list[Path] = []
+    kept: list[Path] = []
+    for pattern in INIT_FILES:
+        for src in sorted(source.glob(pattern)):
+            target = Path(dest) / "configs" / src.relative_to(source)
+            if target.exists() and not overwrite:
+                kept.append(target)
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(src.read_bytes())
+            written.append(target)
+    return written, kept
 
 
 def read_yaml(path: Path) -> dict[str, Any]:
@@ -73,8 +114,8 @@ def load_profile(name: str) -> dict[str, Any]:
             "profile",
             name,
             available_profiles(),
-            hint="profiles live in "
-            "configs/profiles/<name>.yaml; set SHAPEBENCH_CONFIG_DIR to use yours",
+            hint="profiles live in configs/profiles/<name>.yaml; 'shapebench init' writes "
+            "an editable copy of the built-in ones, or set SHAPEBENCH_CONFIG_DIR to use yours",
         )
     return read_yaml(path)
 

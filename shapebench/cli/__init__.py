@@ -8,13 +8,14 @@
   ``merge``;
 * :mod:`~shapebench.cli.plugins`: ``plugins``, ``methods``, ``datasets``, ``metrics``,
   ``check``;
-* :mod:`~shapebench.cli.data`: ``prepare``.
+* :mod:`~shapebench.cli.data`: ``prepare``;
+* :mod:`~shapebench.cli.init`: ``init``.
 
 A new command goes in the family it belongs to (or a new module imported here), parses its
 options and calls a function of the room below that does the work.
 """
 
-from shapebench.cli import data, evaluate, plugins, results  # noqa: F401 (register the commands)
+from shapebench.cli import data, evaluate, init, plugins, results  # noqa: F401 (register the commands)
 from shapebench.cli.app import cli, main
 
 __all__ = ["cli", "main"]

@@ -314,9 +314,21 @@ def manifest_path(settings: Settings, sweep_name: str) -> Path:
     return settings.artifact_root.parent / "sweeps" / f"{sweep_name}.jsonl"
 
 
+def _submitit() -> Any:
+    """The submitit module, or one clear line saying how to install it (an optional extra)."""
+    try:
+        import submitit
+    except ImportError as exc:
+        raise ShapebenchError(
+            "the slurm and submitit-local launchers need submitit, which is not installed",
+            hint="pip install 'shapebench[cluster]'",
+        ) from exc
+    return submitit
+
+
 def _executor(cfg: LauncherConfig, folder: Path, ranks: int = 1, nodes: int = 1) -> Any:
     os.environ.setdefault("SUBMITIT_PREEMPT_SIGNAL", PREEMPT_SIGNAL)
-    import submitit
+    submitit = _submitit()
 
     if cfg.name == "submitit-local":
         executor = submitit.LocalExecutor(folder=str(folder))
