@@ -4,6 +4,10 @@ Everything a plugin needs is importable from here::
 
     from shapebench import Completion, Context, Method, Metric, MetricCard, hookimpl
 
+and the results, as pandas DataFrames for notebooks (docs/python.md)::
+
+    scores = shapebench.load_results("synthetic", "trained")
+
 :data:`hookimpl` marks the hook implementations declared in :mod:`shapebench.api.hookspecs`; the
 interfaces live in :mod:`shapebench.api.method`, :mod:`shapebench.api.dataset` and
 :mod:`shapebench.api.metric`, the data passed between them in :mod:`shapebench.api.types`.
@@ -48,6 +52,9 @@ _LAZY: dict[str, str] = {
     "NOVEL": "shapebench.api.types",
     "NoOptions": "shapebench.api.options",
     "ShapebenchError": "shapebench.api.errors",
+    # Results as DataFrames, for notebooks (docs/python.md).
+    "load_results": "shapebench.boards.frames",
+    "load_leaderboard": "shapebench.boards.frames",
 }
 
 # Written out, not built from _LAZY, so that linters see the re-exports (a test compares them).
@@ -75,6 +82,8 @@ __all__ = [
     "NOVEL",
     "NoOptions",
     "ShapebenchError",
+    "load_results",
+    "load_leaderboard",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does the importing

@@ -1,0 +1,179 @@
+"""Results as pandas DataFrames, for notebooks: the store read the way the leaderboard reads it.
+
+    import shapebench
+    scores = shapebench.load_results("synthetic", "trained")     # one row per (object, cell)
+    table = shapebench.load_leaderboard("synthetic", "trained")  # the leaderboard's CSV
+
+Both select runs as ``shapebench leaderboard`` does (one frame, one data version, the newest run
+per row, context size and seed, the newest variant per label) and read each cell through its
+record (:mod:`shapebench.store.records`) and its ``per_object.csv`` artifact, so user code parses
+no MLflow tags. The store is the workspace's (``./shapebench-runs``, ``$SHAPEBENCH_WORKSPACE``) or
+``tracking_uri``, exactly as for the CLI. Exported from :mod:`shapebench`; docs/python.md shows
+them at work.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from shapebench.api.errors import ShapebenchError
+from shapebench.api.protocol import DEFAULT_FRAME
+from shapebench.boards.leaderboard import (
+    _load_runs,
+    _select_runs,
+    build_board,
+    splits_with_runs,
+    tidy_csv,
+)
+from shapebench.config import make_settings
+from shapebench.store.records import CARD_PREFIX
+from shapebench.store.tracking import Tracker, experiment_name
+
+#: The identity columns of :func:`load_results`, first in every row, in this order.
+RESULT_COLUMNS = (
+    "method",
+    "label",
+    "variant",
+    "dataset",
+    "split",
+    "context",
+    "seed",
+    "object",
+    "category",
+    "protocol",
+    "frame",
+    "failed",
+    "reason",
+    "run_id",
+)
+
+
+def _tracker(workspace: str | Path | None, tracking_uri: str | None) -> Tracker:
+    return Tracker(make_settings(tracking_uri, None, None, workspace))
+
+
+def _no_runs(dataset: str, split: str | None, uri: str) -> ShapebenchError:
+    where = f"{dataset}" + (f"/{split}" if split else "")
+    return ShapebenchError(
+        f"no finished runs of {where} in {uri}",
+        f"run one first (shapebench run -m gauss -d {dataset}), or pass workspace= or "
+        "tracking_uri= to read another store",
+    )
+
+
+def load_results(
+    dataset: str,
+    split: str | None = None,
+    *,
+    metric: str | None = None,
+    frame: str = DEFAULT_FRAME,
+    data_version: str | None = None,
+    workspace: str | Path | None = None,
+    tracking_uri: str | None = None,
+) -> pd.DataFrame:
+    """One row per (object, cell) of ``dataset`` (every split with runs, or ``split``).
+
+    Columns: :data:`RESULT_COLUMNS` (``label`` is the leaderboard's row label, e.g.
+    ``gauss[sigma=0.05]``; ``variant`` its key; ``protocol`` ``points`` or ``points+normals``;
+    ``failed`` True where the method produced nothing for the object, with ``reason``), then one
+    column per metric the cell scored (``metric=`` keeps that one), in the units the metric
+    computes (the tables' x1000 is a display scale). Failed objects have NaN scores: the
+    leaderboard's failure rule (worst successful score of the cell) is applied by
+    :func:`load_leaderboard`, not here.
+    """
+    tracker = _tracker(workspace, tracking_uri)
+    splits = [split] if split else splits_with_runs(tracker, dataset)
+    frames = []
+    for one in splits:
+        exp_id = tracker.experiment_id(experiment_name(dataset, one), create=False)
+        runs = _load_runs(tracker, exp_id) if exp_id is not None else pd.DataFrame()
+        if not runs.empty:
+            runs, _, _ = _select_runs(runs, frame, data_version, all_variants=False)
+        if not runs.empty:
+            frames.append(_per_object_rows(tracker, runs, one))
+    if not frames:
+        raise _no_runs(dataset, split, tracker.uri)
+    table = pd.concat(frames, ignore_index=True)
+    metrics = [c for c in table.columns if c not in RESULT_COLUMNS]
+    if metric is not None:
+        if metric not in metrics:
+            raise ShapebenchError(
+                f"no run of {dataset} recorded metric {metric!r}",
+                f"metrics with values: {', '.join(metrics) or 'none'}",
+            )
+        metrics = [metric]
+    return table[list(RESULT_COLUMNS) + metrics].sort_values(
+        ["split", "label", "context", "seed", "object"], ignore_index=True
+    )
+
+
+def _per_object_rows(tracker: Tracker, runs: pd.DataFrame, split: str) -> pd.DataFrame:
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, run in enumerate(runs.to_dict("records")):
+            dst = Path(tmp) / str(i)
+            dst.mkdir()
+            path = tracker.download_artifact(run["run_id"], "per_object.csv", dst)
+            table = pd.read_csv(path, keep_default_na=False, na_values=[""])
+            # The metrics the cell scored: those with a card (CellRecord.row's card columns).
+            scores = [
+                m[len(CARD_PREFIX) :]
+                for m, card in run.items()
+                if m.startswith(CARD_PREFIX) and isinstance(card, str)
+            ]
+            rows = pd.DataFrame(
+                {
+                    "method": run["method"],
+                    "label": run["_label"],
+                    "variant": run["variant_key"],
+                    "dataset": run["dataset"],
+                    "split": split,
+                    "context": int(run["context_size"]),
+                    "seed": int(run["seed"]),
+                    "object": table["object"].astype(str),
+                    "category": _text(table, "category"),
+                    "protocol": "points+normals" if run.get("context_normals") else "points",
+                    "frame": run["_frame"],
+                    "failed": table["status"] != "ok",
+                    "reason": _text(table, "error"),
+                    "run_id": run["run_id"],
+                }
+            )
+            for name in scores:
+                rows[name] = table[name].astype(float) if name in table else np.nan
+            out.append(rows)
+    return pd.concat(out, ignore_index=True)
+
+
+def _text(table: pd.DataFrame, column: str) -> pd.Series:
+    """A text column of a per-object table, "" where empty or missing (not NaN)."""
+    if column not in table:
+        return pd.Series("", index=table.index)
+    values = table[column].astype(object)
+    return values.where(values.notna(), "")
+
+
+def load_leaderboard(
+    dataset: str,
+    split: str,
+    *,
+    reference: str = "msc-noopt",
+    metric: str | None = None,
+    frame: str = DEFAULT_FRAME,
+    data_version: str | None = None,
+    workspace: str | Path | None = None,
+    tracking_uri: str | None = None,
+) -> pd.DataFrame:
+    """The table ``shapebench leaderboard`` writes as ``<dataset>-<split>.csv``: one row per
+    (kind, row label, context size), ``kind`` ``raw`` (mean and std in the table's scale, x1000
+    for Chamfer) or ``normalised`` (per object divided by ``reference``), with the significance
+    columns (``best``, ``tied``, ``p_vs_best``, ``p_holm``) and the training cost."""
+    tracker = _tracker(workspace, tracking_uri)
+    board = build_board(tracker, dataset, split, reference, metric, frame, data_version)
+    if board is None:
+        raise _no_runs(dataset, split, tracker.uri)
+    return tidy_csv(board)
