@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parent
 class BuildPyWithConfigs(build_py):
     def run(self) -> None:
         super().run()
-        if self.editable_mode:  # an editable install reads configs/ in the checkout itself
+        if getattr(self, "editable_mode", False):  # editable: configs/ is read in the checkout
             return
         target = Path(self.build_lib) / "shapebench" / "_configs"
         shutil.rmtree(target, ignore_errors=True)  # no file removed from configs/ survives
