@@ -162,3 +162,38 @@ def test_same_stem_different_suffix_keeps_ids_unique(tmp_path):
     ds = dataset(tmp_path, tmp_path / "cache")
     assert [r.id for r in ds.objects(NOVEL)] == ["a.obj", "a.stl"]
     assert len(ds.mesh(ObjectRef("a.stl", "misc")).faces) == 80
+
+
+@pytest.mark.slow  # runs the CLI
+def test_empty_garbage_and_nan_meshes_are_named_and_the_good_ones_scored(shapebench, tmp_path):
+    """issue 31: a folder with an empty, a garbage and a NaN mesh beside good ones names all
+    three files in the run's output, scores the good ones, and prints no traceback. The NaN
+    file matters most: trimesh's processing drops non-finite vertices silently, which scored a
+    box with a corner cut off as if it were the file."""
+    import trimesh
+
+    folder = tmp_path / "root" / "things"
+    folder.mkdir(parents=True)
+    trimesh.creation.icosphere(subdivisions=2).export(folder / "ball.obj")
+    trimesh.creation.box().export(folder / "cube.obj")
+    (folder / "empty.obj").write_text("")
+    (folder / "garbage.ply").write_bytes(np.random.default_rng(0).bytes(4096))
+    box = trimesh.creation.box()
+    vertices = box.vertices.copy()
+    vertices[0, 0] = np.nan
+    (folder / "nan.obj").write_text(
+        "".join(f"v {x} {y} {z}\n" for x, y, z in vertices)
+        + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in box.faces)
+    )
+    res = shapebench(
+        "run", "-m", "gauss", "-d", "meshes", "--data-root", str(tmp_path / "root"),
+        "--contexts", "50", "-q", *[f"-D{k}={v}" for k, v in TINY.items()],
+    )  # fmt: skip
+    out = res.stdout + res.stderr
+    assert res.returncode == 0, out
+    assert "Traceback" not in out
+    assert "empty.obj has no triangles" in out
+    assert "garbage.ply" in out and "cannot read mesh file" in out
+    assert "nan.obj has NaN or infinite vertex coordinates" in out
+    runs = shapebench.cell_runs("meshes-novel")
+    assert len(runs) == 1 and runs[0].data.metrics["failures"] == 3.0

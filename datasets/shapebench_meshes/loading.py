@@ -47,6 +47,19 @@ def load_mesh_file(path: Path) -> trimesh.Trimesh:
             f"mesh file {path} has no triangles (empty, truncated, or a point cloud)"
         )
     mesh = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
-    if not np.all(np.isfinite(mesh.vertices)):
+    if not (np.all(np.isfinite(mesh.vertices)) and _raw_vertices_finite(path, kwargs)):
         raise ObjectLoadError(f"mesh file {path} has NaN or infinite vertex coordinates")
     return mesh
+
+
+def _raw_vertices_finite(path: Path, kwargs: dict) -> bool:
+    """Whether every vertex the file holds is finite. trimesh's processing (merging vertices)
+    silently drops NaN and infinite vertices with their faces, so a damaged file would be scored
+    as another shape; the file is parsed a second time without processing to see them. The mesh
+    used is still the processed one: processing changes the vertex lists of real files (merged
+    duplicates), and the preprocessed data must not change."""
+    raw = trimesh.load(str(path), force="scene", process=False, **kwargs)
+    geometries = raw.geometry.values() if isinstance(raw, trimesh.Scene) else [raw]
+    return all(
+        np.all(np.isfinite(np.asarray(g.vertices))) for g in geometries if hasattr(g, "vertices")
+    )
