@@ -186,9 +186,18 @@ def test_empty_garbage_and_nan_meshes_are_named_and_the_good_ones_scored(shapebe
         + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in box.faces)
     )
     res = shapebench(
-        "run", "-m", "gauss", "-d", "meshes", "--data-root", str(tmp_path / "root"),
-        "--contexts", "50", "-q", *[f"-D{k}={v}" for k, v in TINY.items()],
-    )  # fmt: skip
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "meshes",
+        "--data-root",
+        str(tmp_path / "root"),
+        "--contexts",
+        "50",
+        "-q",
+        *[f"-D{k}={v}" for k, v in TINY.items()],
+    )
     out = res.stdout + res.stderr
     assert res.returncode == 0, out
     assert "Traceback" not in out

@@ -23,9 +23,18 @@ ROOT = Path(__file__).resolve().parents[1]
 def two_rows(shapebench):
     for extra in ([], ["-O", "sigma=0.05"]):
         res = shapebench(
-            "run", "-m", "gauss", "-d", "synthetic", "--split", "trained", *TINY, *TINY_CONTEXTS,
-            "-q", *extra,
-        )  # fmt: skip
+            "run",
+            "-m",
+            "gauss",
+            "-d",
+            "synthetic",
+            "--split",
+            "trained",
+            *TINY,
+            *TINY_CONTEXTS,
+            "-q",
+            *extra,
+        )
         assert res.returncode == 0, res.stderr
     return shapebench
 
