@@ -14,7 +14,6 @@ them at work.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +25,7 @@ from shapebench.boards.leaderboard import (
     _load_runs,
     _select_runs,
     build_board,
+    per_object_tables,
     splits_with_runs,
     tidy_csv,
 )
@@ -113,39 +113,34 @@ def load_results(
 
 def _per_object_rows(tracker: Tracker, runs: pd.DataFrame, split: str) -> pd.DataFrame:
     out = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for i, run in enumerate(runs.to_dict("records")):
-            dst = Path(tmp) / str(i)
-            dst.mkdir()
-            path = tracker.download_artifact(run["run_id"], "per_object.csv", dst)
-            table = pd.read_csv(path, keep_default_na=False, na_values=[""])
-            # The metrics the cell scored: those with a card (CellRecord.row's card columns).
-            scores = [
-                m[len(CARD_PREFIX) :]
-                for m, card in run.items()
-                if m.startswith(CARD_PREFIX) and isinstance(card, str)
-            ]
-            rows = pd.DataFrame(
-                {
-                    "method": run["method"],
-                    "label": run["_label"],
-                    "variant": run["variant_key"],
-                    "dataset": run["dataset"],
-                    "split": split,
-                    "context": int(run["context_size"]),
-                    "seed": int(run["seed"]),
-                    "object": table["object"].astype(str),
-                    "category": _text(table, "category"),
-                    "protocol": "points+normals" if run.get("context_normals") else "points",
-                    "frame": run["_frame"],
-                    "failed": table["status"] != "ok",
-                    "reason": _text(table, "error"),
-                    "run_id": run["run_id"],
-                }
-            )
-            for name in scores:
-                rows[name] = table[name].astype(float) if name in table else np.nan
-            out.append(rows)
+    for run, table in per_object_tables(tracker, runs):
+        # The metrics the cell scored: those with a card (CellRecord.row's card columns).
+        scores = [
+            m[len(CARD_PREFIX) :]
+            for m, card in run.items()
+            if m.startswith(CARD_PREFIX) and isinstance(card, str)
+        ]
+        rows = pd.DataFrame(
+            {
+                "method": run["method"],
+                "label": run["_label"],
+                "variant": run["variant_key"],
+                "dataset": run["dataset"],
+                "split": split,
+                "context": int(run["context_size"]),
+                "seed": int(run["seed"]),
+                "object": table["object"].astype(str),
+                "category": _text(table, "category"),
+                "protocol": "points+normals" if run.get("context_normals") else "points",
+                "frame": run["_frame"],
+                "failed": table["status"] != "ok",
+                "reason": _text(table, "error"),
+                "run_id": run["run_id"],
+            }
+        )
+        for name in scores:
+            rows[name] = table[name].astype(float) if name in table else np.nan
+        out.append(rows)
     return pd.concat(out, ignore_index=True)
 
 

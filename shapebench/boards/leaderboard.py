@@ -19,6 +19,7 @@ import json
 import shlex
 import sys
 import tempfile
+from collections.abc import Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -56,24 +57,29 @@ def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
     return table
 
 
-def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFrame:
-    frames = []
+def per_object_tables(tracker: Tracker, runs: pd.DataFrame) -> Iterator[tuple[dict, pd.DataFrame]]:
+    """Each run of ``runs`` (as a dict) with its ``per_object.csv`` artifact, read once."""
     with tempfile.TemporaryDirectory() as tmp:
         for i, run in enumerate(runs.to_dict("records")):
             dst = Path(tmp) / str(i)
             dst.mkdir()
             path = tracker.download_artifact(run["run_id"], "per_object.csv", dst)
-            table = pd.read_csv(path, keep_default_na=False, na_values=[""])
-            table["value"] = table.get(metric, np.nan)
-            table["variant"] = run["variant_key"]
-            table["label"] = run["_label"]
-            table["context"] = int(run["context_size"])
-            table["seed"] = int(run["seed"])
-            table["object"] = table["object"].astype(str)
-            if "seconds" not in table:  # cost per object, for the cost columns
-                table["seconds"] = np.nan
-            cols = ["variant", "label", "context", "seed", "object", "status", "value", "seconds"]
-            frames.append(table[cols])
+            yield run, pd.read_csv(path, keep_default_na=False, na_values=[""])
+
+
+def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFrame:
+    frames = []
+    for run, table in per_object_tables(tracker, runs):
+        table["value"] = table.get(metric, np.nan)
+        table["variant"] = run["variant_key"]
+        table["label"] = run["_label"]
+        table["context"] = int(run["context_size"])
+        table["seed"] = int(run["seed"])
+        table["object"] = table["object"].astype(str)
+        if "seconds" not in table:  # cost per object, for the cost columns
+            table["seconds"] = np.nan
+        cols = ["variant", "label", "context", "seed", "object", "status", "value", "seconds"]
+        frames.append(table[cols])
     return pd.concat(frames, ignore_index=True)
 
 
