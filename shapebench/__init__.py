@@ -4,8 +4,9 @@ Everything a plugin needs is importable from here::
 
     from shapebench import Completion, Context, Method, Metric, MetricCard, hookimpl
 
-and the results, as pandas DataFrames for notebooks (docs/python.md)::
+and, for notebooks, runs and their results as pandas DataFrames (docs/python.md)::
 
+    scores = shapebench.evaluate("gauss", "synthetic", contexts=(50, 1000))
     scores = shapebench.load_results("synthetic", "trained")
 
 :data:`hookimpl` marks the hook implementations declared in :mod:`shapebench.api.hookspecs`; the
@@ -55,6 +56,7 @@ _LAZY: dict[str, str] = {
     # Results as DataFrames, for notebooks (docs/python.md).
     "load_results": "shapebench.boards.frames",
     "load_leaderboard": "shapebench.boards.frames",
+    "evaluate": "shapebench.notebook",
 }
 
 # Written out, not built from _LAZY, so that linters see the re-exports (a test compares them).
@@ -84,6 +86,7 @@ __all__ = [
     "ShapebenchError",
     "load_results",
     "load_leaderboard",
+    "evaluate",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does the importing

@@ -14,7 +14,7 @@ from matplotlib.collections import PathCollection, PolyCollection
 
 from shapebench.boards import figures
 from shapebench.boards.cost import describe_training, device_count, row_costs
-from shapebench.evaluate.pictures import is_blank
+from shapebench.evaluation.pictures import is_blank
 
 
 def _scored(labels: dict[str, tuple[float, float]], contexts=(50, 100, 300, 1000), n=12):

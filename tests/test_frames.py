@@ -13,6 +13,7 @@ import pytest
 from conftest import TINY, TINY_CONTEXTS
 
 import shapebench
+import shapebench as shapebench_api
 from shapebench.api.errors import ShapebenchError
 from shapebench.boards.frames import RESULT_COLUMNS
 
@@ -93,3 +94,77 @@ def test_an_empty_store_says_what_to_run(tmp_path):
     assert "shapebench run -m gauss -d synthetic" in err.value.hint
     with pytest.raises(ShapebenchError, match="no finished runs of synthetic/trained"):
         shapebench.load_leaderboard("synthetic", "trained", workspace=tmp_path)
+
+
+#: conftest.TINY as Python values, the way a notebook passes them.
+TINY_OPTIONS = {
+    "test_per_category": 1,
+    "train_per_category": 1,
+    "surface_candidates": 3000,
+    "gt_points": 2000,
+}
+
+
+@pytest.mark.slow  # runs cells, then the CLI
+def test_evaluate_runs_the_cells_the_cli_then_finds_cached(shapebench):
+    ws = shapebench.workspace
+    where = {"workspace": ws, "cache_dir": shapebench.cache}
+    scores = shapebench_api.evaluate(
+        "gauss",
+        "synthetic",
+        contexts=(50, 100),
+        split="trained",
+        options={"sigma": 0.05},
+        dataset_options=TINY_OPTIONS,
+        progress=False,
+        **where,
+    )
+    assert list(scores.columns[: len(RESULT_COLUMNS)]) == list(RESULT_COLUMNS)
+    assert set(scores.label) == {"gauss[sigma=0.05]"} and set(scores.context) == {50, 100}
+    assert len(scores) == 2 * 11 and not scores.failed.any()
+    assert scores["chamfer-l2"].notna().all()
+
+    # The command with the same options, given as text, finds every cell: the same keys.
+    res = shapebench(
+        "run",
+        "-m",
+        "gauss",
+        "-d",
+        "synthetic",
+        "--split",
+        "trained",
+        *TINY,
+        *TINY_CONTEXTS,
+        "-O",
+        "sigma=0.05",
+        "-q",
+    )
+    assert res.returncode == 0, res.stderr
+    states = [line.split()[-1] for line in res.stdout.splitlines() if line.strip()[:1].isdigit()]
+    assert states == ["cached", "cached"], res.stdout
+
+    # Called again, it recomputes nothing and returns the same rows.
+    again = shapebench_api.evaluate(
+        "gauss",
+        "synthetic",
+        contexts=[50, 100],
+        split=["trained"],
+        options={"sigma": 0.05},
+        dataset_options=TINY_OPTIONS,
+        progress=False,
+        **where,
+    )
+    pd.testing.assert_frame_equal(again, scores)
+    # What it returns is what load_results reads from the store.
+    stored = shapebench_api.load_results("synthetic", "trained", workspace=ws)
+    pd.testing.assert_frame_equal(stored, scores)
+
+
+def test_evaluate_names_a_bad_argument(tmp_path):
+    with pytest.raises(ShapebenchError, match="trainer= has no option 'max_step'") as err:
+        shapebench_api.evaluate("gauss", "synthetic", trainer={"max_step": 5}, workspace=tmp_path)
+    assert "max_steps" in err.value.hint
+    with pytest.raises(ShapebenchError, match="contexts= must be an int or a sequence of ints"):
+        shapebench_api.evaluate("gauss", "synthetic", contexts="50,100", workspace=tmp_path)
+    with pytest.raises(ShapebenchError, match="unknown method 'nope'"):
+        shapebench_api.evaluate("nope", "synthetic", workspace=tmp_path)

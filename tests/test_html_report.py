@@ -20,7 +20,7 @@ from browser_support import keep_screenshot, launch_chromium
 from conftest import TINY, Shapebench
 from matplotlib.image import imread
 
-from shapebench.evaluate.pictures import is_blank
+from shapebench.evaluation.pictures import is_blank
 
 pytestmark = pytest.mark.slow  # runs the CLI, MLflow and a browser
 
@@ -220,7 +220,7 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     from shapebench.api.types import NOVEL, Completion
     from shapebench.boards.html_report import build_report
     from shapebench.config import make_settings
-    from shapebench.evaluate.runner import Runner, RunPlan
+    from shapebench.evaluation.runner import Runner, RunPlan
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_method, resolve_metrics
     from shapebench.registry.variant import make_variant

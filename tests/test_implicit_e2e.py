@@ -104,7 +104,7 @@ def test_msc_trains_once_for_both_rows_and_logs_posterior_samples(shapebench):
             noopt.info.run_id, "per_object.csv", str(shapebench.workspace / "noopt")
         )
     )
-    from shapebench.evaluate.pictures import picture_objects
+    from shapebench.evaluation.pictures import picture_objects
 
     pictured = set(picture_objects(table.object.tolist()))
     assert len(pictured) == 3

@@ -112,7 +112,7 @@ def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):
     """A data-scaling sweep trains one method on more shapes: each scale is a checkpoint of its
     own and a row of its own, labelled so the rows read apart; the evaluation data is the same."""
     from shapebench.api.method import TrainerOptions
-    from shapebench.evaluate.orchestrate import EvalRequest, _variant
+    from shapebench.evaluation.orchestrate import EvalRequest, _variant
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
     from shapebench.train.training import checkpoint_key, training_identity

@@ -12,8 +12,8 @@ import trimesh
 from matplotlib.collections import PathCollection
 from matplotlib.image import imread
 
-from shapebench.evaluate import pictures
-from shapebench.evaluate.pictures import (
+from shapebench.evaluation import pictures
+from shapebench.evaluation.pictures import (
     VIEWS,
     is_blank,
     object_figure,

@@ -1,4 +1,4 @@
-"""``shapebench.evaluate.prepare``: parallel preprocessing gives the same arrays, failures are
+"""``shapebench.evaluation.prepare``: parallel preprocessing gives the same arrays, failures are
 reported."""
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from shapebench_synthetic.dataset import SyntheticDataset, SyntheticOptions  # n
 from shapebench.api.dataset import ObjectLoadError  # noqa: E402
 from shapebench.api.errors import ConfigError, ShapebenchError  # noqa: E402
 from shapebench.api.types import NOVEL, TRAIN, TRAINED  # noqa: E402
-from shapebench.evaluate.prepare import prepare  # noqa: E402
+from shapebench.evaluation.prepare import prepare  # noqa: E402
 
 TINY = MeshFolderOptions(surface_candidates=2000, gt_points=1500, viewpoints=30)
 

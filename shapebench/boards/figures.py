@@ -265,7 +265,7 @@ def line_count(fig: Any) -> int:
 
 def save(fig: Any, stem: Path) -> list[Path]:
     """``stem``.png and ``stem``.svg; refuses to write a figure with nothing drawn."""
-    from shapebench.evaluate.pictures import is_blank
+    from shapebench.evaluation.pictures import is_blank
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png")

@@ -22,10 +22,11 @@ import pandas as pd
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_FRAME
 from shapebench.boards.leaderboard import (
-    _load_runs,
-    _select_runs,
     build_board,
+    label_runs,
+    load_runs,
     per_object_tables,
+    select_runs,
     splits_with_runs,
     tidy_csv,
 )
@@ -90,14 +91,14 @@ def load_results(
     frames = []
     for one in splits:
         exp_id = tracker.experiment_id(experiment_name(dataset, one), create=False)
-        runs = _load_runs(tracker, exp_id) if exp_id is not None else pd.DataFrame()
+        runs = load_runs(tracker, exp_id) if exp_id is not None else pd.DataFrame()
         if not runs.empty:
-            runs, _, _ = _select_runs(runs, frame, data_version, all_variants=False)
+            runs, _, _ = select_runs(runs, frame, data_version, all_variants=False)
         if not runs.empty:
             frames.append(_per_object_rows(tracker, runs, one))
     if not frames:
         raise _no_runs(dataset, split, tracker.uri)
-    table = pd.concat(frames, ignore_index=True)
+    table = _ordered(pd.concat(frames, ignore_index=True))
     metrics = [c for c in table.columns if c not in RESULT_COLUMNS]
     if metric is not None:
         if metric not in metrics:
@@ -106,6 +107,31 @@ def load_results(
                 f"metrics with values: {', '.join(metrics) or 'none'}",
             )
         metrics = [metric]
+    return table[list(RESULT_COLUMNS) + metrics]
+
+
+def results_of_runs(tracker: Tracker, dataset: str, run_ids: dict[str, list[str]]) -> pd.DataFrame:
+    """:func:`load_results`' rows of exactly the cells ``run_ids`` names (split -> run ids of
+    finished cells of ``dataset``), whatever their frame, data version or age: what
+    :func:`shapebench.evaluate` ran."""
+    frames = []
+    for split, ids in run_ids.items():
+        exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
+        runs = load_runs(tracker, exp_id) if exp_id is not None else pd.DataFrame()
+        runs = runs[runs["run_id"].isin(ids)] if not runs.empty else runs
+        if len(runs) != len(set(ids)):
+            raise ShapebenchError(
+                f"{len(set(ids)) - len(runs)} of the {len(set(ids))} cells of {dataset}/{split} "
+                f"just run are not finished runs in {tracker.uri}",
+                "another process may have deleted them; run again",
+            )
+        frames.append(_per_object_rows(tracker, label_runs(runs), split))
+    return _ordered(pd.concat(frames, ignore_index=True))
+
+
+def _ordered(table: pd.DataFrame) -> pd.DataFrame:
+    """The identity columns first, then the metrics; rows by split, label, context, seed, object."""
+    metrics = [c for c in table.columns if c not in RESULT_COLUMNS]
     return table[list(RESULT_COLUMNS) + metrics].sort_values(
         ["split", "label", "context", "seed", "object"], ignore_index=True
     )

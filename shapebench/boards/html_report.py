@@ -5,7 +5,7 @@ each
 context size and which rows are statistically tied with the winner, the raw and normalised
 tables (sortable: click a header), the cost of each row, the metric card, the figures of
 :mod:`shapebench.boards.figures` (inline SVG), the qualitative grids of
-:mod:`shapebench.evaluate.pictures`
+:mod:`shapebench.evaluation.pictures`
 (rows = methods, columns = context sizes, drawn from the pictures the cells logged) and, for
 methods that return posterior samples, the completions coloured by their per-point spread; then
 where the numbers come from (versions, git commits, dataset fingerprints).
@@ -153,7 +153,7 @@ def _cell_pictures(tracker: Tracker, run_id: str, dst: Path) -> dict[str, dict[s
 def _grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
     """The qualitative grids (one per pictured object, up to ``GRIDS``) and the posterior
     spread pictures of the board's cells."""
-    from shapebench.evaluate.pictures import png_bytes, qualitative_grid
+    from shapebench.evaluation.pictures import png_bytes, qualitative_grid
 
     labels = {r.variant: r.label for r in board.rows}
     cells: dict[tuple[str, int], dict[str, dict[str, np.ndarray]]] = {}
@@ -207,7 +207,7 @@ def _grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
 
 
 def _spread_picture(arrays: dict[str, np.ndarray], title: str) -> str:
-    from shapebench.evaluate.pictures import picture_png
+    from shapebench.evaluation.pictures import picture_png
 
     return _data_uri(picture_png(arrays, title))
 

@@ -45,14 +45,16 @@ def _card_text(tag: str) -> str:
         return tag
 
 
-def _load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
+def load_runs(tracker: Tracker, exp_id: str) -> pd.DataFrame:
+    """Every finished cell of experiment ``exp_id``, a row each (``run_id``, ``start`` and the
+    columns of :meth:`~shapebench.store.records.CellRecord.row`), for :func:`select_runs`."""
     # Cells are read through their record (shapebench.store.records), the same code that wrote them.
     rows = [
         {"run_id": run_id, "start": start, **record.row()}
         for run_id, start, record in tracker.finished_cells(exp_id)
     ]
     table = pd.DataFrame(rows)
-    if "variant_key" in table:  # runs logged before variant keys have none (see _select_runs)
+    if "variant_key" in table:  # runs logged before variant keys have none (see select_runs)
         table["variant_key"] = table["variant_key"].replace("", np.nan)
     return table
 
@@ -89,7 +91,7 @@ def _column(runs: pd.DataFrame, name: str, default: str) -> pd.Series:
     return runs[name].fillna(default).replace("", default)
 
 
-def _select_runs(
+def select_runs(
     runs: pd.DataFrame, frame: str, data_version: str | None, all_variants: bool
 ) -> tuple[pd.DataFrame, str, list[str]]:
     """The runs of one table: one frame, one data version, the newest run per (variant, context,
@@ -137,9 +139,7 @@ def _select_runs(
         )
         left_out.append(f"runs on other data versions: {listed} (--data-version FINGERPRINT)")
     runs = runs[runs["fingerprint"] == fingerprint]
-    runs = runs.drop_duplicates(subset=["variant_key", "context_size", "seed"], keep="first")
-    runs["_label"] = _column(runs, "variant_label", "")
-    runs.loc[runs["_label"] == "", "_label"] = runs["method"]
+    runs = label_runs(runs.drop_duplicates(subset=["variant_key", "context_size", "seed"]))
     newest = runs.groupby("_label")["start"].transform("max")
     variant_newest = runs.groupby("variant_key")["start"].transform("max")
     older = variant_newest < newest  # an older variant under a label a newer one uses
@@ -156,6 +156,16 @@ def _select_runs(
             )
             runs = runs[~older]
     return runs, str(fingerprint), left_out
+
+
+def label_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """``runs`` with the columns the tables read: ``_frame`` (the cell's frame) and ``_label``
+    (its row label: the variant's label, or the method's name where it has none)."""
+    runs = runs.copy()
+    runs["_frame"] = _column(runs, "frame", DEFAULT_FRAME)
+    runs["_label"] = _column(runs, "variant_label", "")
+    runs.loc[runs["_label"] == "", "_label"] = runs["method"]
+    return runs
 
 
 def _text(value: object) -> str:
@@ -224,10 +234,10 @@ def build_board(
     exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
     if exp_id is None:
         return None
-    runs = _load_runs(tracker, exp_id)
+    runs = load_runs(tracker, exp_id)
     if runs.empty:
         return None
-    runs, fingerprint, left_out = _select_runs(runs, frame, data_version, all_variants)
+    runs, fingerprint, left_out = select_runs(runs, frame, data_version, all_variants)
     if runs.empty:
         return None
     if metric is None:

@@ -91,7 +91,7 @@ def prepare(
       shapebench prepare -d shapenet --data-root /shared/ShapeNetCore.v2 --launcher slurm \\
           --shards 64 --slurm partition=cpu --slurm time=60
     """
-    from shapebench.evaluate.prepare import PrepareRequest, prepare_request
+    from shapebench.evaluation.prepare import PrepareRequest, prepare_request
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     req = PrepareRequest(

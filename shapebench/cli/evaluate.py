@@ -136,7 +136,7 @@ def run(
           --slurm tracking=per-job --devices 1 --accelerator gpu
     """
     from shapebench.cli.printing import print_summary
-    from shapebench.evaluate.orchestrate import EvalRequest, evaluate
+    from shapebench.evaluation.orchestrate import EvalRequest, evaluate
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     req = EvalRequest(

@@ -12,7 +12,7 @@ from shapebench.api.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
 
 if TYPE_CHECKING:
     from shapebench.config import Settings
-    from shapebench.evaluate.orchestrate import EvalOutcome
+    from shapebench.evaluation.orchestrate import EvalOutcome
 
 
 def _pm(mean: float | None, std: float | None, scale: float) -> str:

@@ -204,7 +204,7 @@ class CellsJob:
         self.cells = cells
 
     def __call__(self) -> list[str]:
-        from shapebench.evaluate.orchestrate import evaluate
+        from shapebench.evaluation.orchestrate import evaluate
         from shapebench.store.tracking import Tracker
         from shapebench.sweeps.spec import request, sweep_methods
 
@@ -253,7 +253,7 @@ class TrainingJob:
         self.task = task
 
     def __call__(self) -> str:
-        from shapebench.evaluate.orchestrate import resolve_request
+        from shapebench.evaluation.orchestrate import resolve_request
         from shapebench.sweeps.spec import request, sweep_methods
         from shapebench.train.lightning_fit import TrainingInterrupted
         from shapebench.train.training import apply_trainer, checkpoint_key, train_here
@@ -632,7 +632,7 @@ class PrepareJob:
         self.jobs = jobs
 
     def __call__(self) -> list[str]:
-        from shapebench.evaluate.prepare import prepare_request
+        from shapebench.evaluation.prepare import prepare_request
 
         reports = prepare_request(self.req, self.settings, self.jobs, True, self.shard)
         lines = []

@@ -2,7 +2,7 @@
 trainings the missing ones need.
 
 A cluster launcher submits only this (:mod:`shapebench.sweeps.cluster`): cells are identified by the
-same keys the runner skips finished cells by (:func:`shapebench.evaluate.runner.planned_cells`),
+same keys the runner skips finished cells by (:func:`shapebench.evaluation.runner.planned_cells`),
 and a
 training by its checkpoint key, so resubmitting an interrupted sweep submits exactly what is
 missing. ``shapebench sweep FILE --status`` prints the same plan.
@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import TrainerOptions
 from shapebench.config import Settings
-from shapebench.evaluate.orchestrate import resolve_request, seed_plans
-from shapebench.evaluate.runner import Runner, planned_cells
+from shapebench.evaluation.orchestrate import resolve_request, seed_plans
+from shapebench.evaluation.runner import Runner, planned_cells
 from shapebench.store.tracking import Tracker, experiment_name
 from shapebench.sweeps.spec import SweepSpec, pairs, request, sweep_methods
 from shapebench.train.training import checkpoint_dir, read_done

@@ -16,7 +16,7 @@ from shapebench.api.errors import ConfigError, ShapebenchError
 from shapebench.api.method import TrainerOptions
 from shapebench.api.protocol import DEFAULT_FRAME, Protocol
 from shapebench.config import Settings, read_yaml
-from shapebench.evaluate.orchestrate import EvalOutcome, EvalRequest, evaluate
+from shapebench.evaluation.orchestrate import EvalOutcome, EvalRequest, evaluate
 from shapebench.registry.discovery import get_registry
 from shapebench.store.tracking import Tracker
 

@@ -99,7 +99,7 @@ def run_inline(
     launch: SweepLaunch, on_error: Callable[[str, str, ShapebenchError], None]
 ) -> Iterator[Any]:
     """Compute the sweep's cells in this process, yielding each method x dataset outcome
-    (:class:`shapebench.evaluate.orchestrate.EvalOutcome`) as it finishes; ``on_error`` hears of
+    (:class:`shapebench.evaluation.orchestrate.EvalOutcome`) as it finishes; ``on_error`` hears of
     a method or dataset that cannot run (the rest of the sweep goes on)."""
     from shapebench.sweeps.spec import run_sweep
 

@@ -16,7 +16,7 @@ from shapebench.api.method import Method, TrainerOptions
 from shapebench.api.protocol import Protocol
 from shapebench.api.types import TRAIN
 from shapebench.config import Settings, plugin_overrides
-from shapebench.evaluate.runner import CellResult, Runner, RunPlan, validate_contexts
+from shapebench.evaluation.runner import CellResult, Runner, RunPlan, validate_contexts
 from shapebench.registry.discovery import get_registry
 from shapebench.registry.resolve import (
     ResolvedMethod,

@@ -38,7 +38,7 @@ from shapebench.store.records import CellRecord
 from shapebench.store.tracking import Tracker, experiment_name, flatten
 
 #: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
-EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluate.pictures.PICTURES_PER_CELL)
+EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluation.pictures.PICTURES_PER_CELL)
 TOP_REASONS = 3  # distinct failure reasons printed per cell
 #: Per-object column prefix holding the error of a metric that raised on that object.
 METRIC_ERROR = "metric_error."
@@ -588,7 +588,7 @@ class Runner:
             rows, contexts, examples = [], [], []
             # The pictured objects depend on the split's object list only, never on which
             # objects failed: every method's pictures (and .ply files) show the same objects.
-            from shapebench.evaluate.pictures import picture_objects
+            from shapebench.evaluation.pictures import picture_objects
 
             pictured = set(picture_objects([r.id for r in refs]))
             truths: dict[str, np.ndarray] = {}
@@ -751,7 +751,7 @@ class Runner:
         pictured objects failed, ``spare`` successes fill the ``.ply`` examples up."""
         import trimesh
 
-        from shapebench.evaluate.pictures import file_stem, picture_arrays, picture_png
+        from shapebench.evaluation.pictures import file_stem, picture_arrays, picture_png
 
         with tempfile.TemporaryDirectory() as tmp:
             tmpdir = Path(tmp)
