@@ -119,22 +119,24 @@ def load_sweep(path: Path) -> SweepSpec:
     methods = (
         data["methods"] if data["methods"] == "all" else _entries(data["methods"], "methods", path)
     )
-    contexts = data.get("contexts", [50, 100, 300, 1000])
-    seeds = data.get("seeds", [0])
-    if not all(isinstance(c, int) for c in contexts) or not all(isinstance(s, int) for s in seeds):
-        raise ConfigError(f"{path}: 'contexts' and 'seeds' must be lists of integers")
+    for key, kind in (("name", str), ("profile", str), ("frame", str), ("context_normals", bool)):
+        if data.get(key) is not None and not isinstance(data[key], kind):
+            raise ConfigError(
+                f"{path}: '{key}' must be a {kind.__name__}, got {data[key]!r}",
+                f"e.g. {key}: {_EXAMPLES[key]}",
+            )
     spec = SweepSpec(
-        name=data.get("name", path.stem),
+        name=data.get("name") or path.stem,
         methods=methods,
         datasets=_entries(data["datasets"], "datasets", path),
-        splits=data.get("splits"),
-        contexts=contexts,
-        seeds=seeds,
+        splits=_list_of(data, "splits", str, None, path),
+        contexts=_list_of(data, "contexts", int, [50, 100, 300, 1000], path),
+        seeds=_list_of(data, "seeds", int, [0], path),
         profile=data.get("profile"),
-        metrics=data.get("metrics"),
+        metrics=_list_of(data, "metrics", str, None, path),
         protocol=Protocol(
             context_normals=bool(data.get("context_normals", False)),
-            frame=data.get("frame", DEFAULT_FRAME),
+            frame=data.get("frame") or DEFAULT_FRAME,
         ),
         launcher=_launcher_block(data.get("launcher"), path),
     )
@@ -149,6 +151,40 @@ def load_sweep(path: Path) -> SweepSpec:
                     f"{sorted(known)})"
                 )
     return spec
+
+
+#: What a sweep file's scalar and list keys look like, for the errors that name a wrong type.
+_EXAMPLES = {
+    "name": "my-sweep",
+    "profile": "quick",
+    "frame": "unit-diameter",
+    "context_normals": "true",
+    "splits": "[trained, novel]",
+    "contexts": "[50, 100, 300, 1000]",
+    "seeds": "[0, 1, 2]",
+    "metrics": "[chamfer-l2, fscore]",
+}
+
+
+def _list_of(data: dict, key: str, kind: type, default: Any, path: Path) -> Any:
+    """``data[key]`` as a non-empty list of ``kind`` (``default`` when absent, a single value as a
+    list of one); one clear error
+    naming the key otherwise (a bool is not an int here, though Python says it is)."""
+    value = data.get(key)
+    if value is None:
+        return default
+    if isinstance(value, kind) and not isinstance(value, bool):
+        value = [value]  # one value for a list, as 'methods: gauss' is
+    if (
+        not isinstance(value, list)
+        or not value
+        or not all(isinstance(v, kind) and not isinstance(v, bool) for v in value)
+    ):
+        raise ConfigError(
+            f"{path}: '{key}' must be a non-empty list of {kind.__name__}s, got {value!r}",
+            f"e.g. {key}: {_EXAMPLES[key]}",
+        )
+    return value
 
 
 def _launcher_block(value: Any, path: Path) -> dict[str, Any]:
