@@ -185,6 +185,14 @@ def test_empty_garbage_and_nan_meshes_are_named_and_the_good_ones_scored(shapebe
         "".join(f"v {x} {y} {z}\n" for x, y, z in vertices)
         + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in box.faces)
     )
+    # A single flat triangle is a surface like any other (a sheet): it is scored. Triangles whose
+    # corners lie on one line have no area at all: a failure naming the file.
+    (folder / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (folder / "line.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n")
+    # Files that are not meshes (ShapeNet keeps materials and notes beside its models) are not
+    # objects: one line says how many were left out.
+    (folder / "model.mtl").write_text("newmtl a\n")
+    (folder / "README.txt").write_text("not a mesh\n")
     res = shapebench(
         "run",
         "-m",
@@ -204,5 +212,8 @@ def test_empty_garbage_and_nan_meshes_are_named_and_the_good_ones_scored(shapebe
     assert "empty.obj has no triangles" in out
     assert "garbage.ply" in out and "cannot read mesh file" in out
     assert "nan.obj has NaN or infinite vertex coordinates" in out
+    assert "line.obj has zero surface area (every triangle is degenerate)" in out
+    assert "2 files are not meshes and were left out (1 .mtl, 1 .txt; e.g. things/README.txt" in out
     runs = shapebench.cell_runs("meshes-novel")
-    assert len(runs) == 1 and runs[0].data.metrics["failures"] == 3.0
+    assert len(runs) == 1 and runs[0].data.metrics["failures"] == 4.0
+    assert runs[0].data.metrics["n_objects"] == 7.0  # ball, cube and flat scored

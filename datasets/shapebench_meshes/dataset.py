@@ -76,6 +76,8 @@ class MeshFolderDataset(MeshDataset):
                 "e.g. -D train_fraction=0.8 keeps 20% of every category for testing",
             )
         self._files: dict[str, MeshFile] | None = None
+        #: Files below the data root that are not meshes (an unknown extension), relative paths.
+        self._not_meshes: list[str] = []
         self._version: str | None = None
 
     # ------------------------------------------------------------------ listing
@@ -84,8 +86,22 @@ class MeshFolderDataset(MeshDataset):
     def files(self) -> dict[str, MeshFile]:
         """Object id -> file, read from the data root once per instance."""
         if self._files is None:
-            self._files = scan_mesh_folder(self.data_root, self.obtain_hint)
+            self._files = scan_mesh_folder(self.data_root, self.obtain_hint, self._not_meshes)
         return self._files
+
+    def selection_notes(self, split: str) -> list[str]:
+        self.files  # noqa: B018 -- the scan fills _not_meshes
+        if not self._not_meshes:
+            return []
+        counts: dict[str, int] = {}
+        for rel in self._not_meshes:
+            suffix = os.path.splitext(rel)[1].lower() or "no extension"
+            counts[suffix] = counts.get(suffix, 0) + 1
+        listed = ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+        return [
+            f"{len(self._not_meshes)} files are not meshes and were left out ({listed}; "
+            f"e.g. {self._not_meshes[0]}; mesh files are {', '.join(MESH_SUFFIXES)})"
+        ]
 
     @property
     def version(self) -> str:
@@ -128,11 +144,15 @@ class MeshFolderDataset(MeshDataset):
         return load_mesh_file(Path(self.data_root) / entry.relpath)
 
 
-def scan_mesh_folder(root: Path | None, hint: str) -> dict[str, MeshFile]:
+def scan_mesh_folder(
+    root: Path | None, hint: str, not_meshes: list[str] | None = None
+) -> dict[str, MeshFile]:
     """Every mesh file below ``root`` by object id, in a stable order; hidden entries skipped.
 
     The id is the "/"-separated relative path without the suffix; when two files differ only by
-    their suffix (``a.obj`` and ``a.ply``) both keep it, so ids stay unique.
+    their suffix (``a.obj`` and ``a.ply``) both keep it, so ids stay unique. Files with another
+    suffix are not objects (ShapeNet keeps ``.mtl`` materials and textures beside every model,
+    so a failure each would bury the real ones); their relative paths go to ``not_meshes``.
     """
     if root is None:
         raise DataNotFoundError("dataset 'meshes' needs a folder of meshes", hint)
@@ -143,9 +163,13 @@ def scan_mesh_folder(root: Path | None, hint: str) -> dict[str, MeshFile]:
     for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
         for name in sorted(filenames):
-            if name.startswith(".") or os.path.splitext(name)[1].lower() not in MESH_SUFFIXES:
+            if name.startswith("."):
                 continue
             path = Path(dirpath) / name
+            if os.path.splitext(name)[1].lower() not in MESH_SUFFIXES:
+                if not_meshes is not None:
+                    not_meshes.append(path.relative_to(root).as_posix())
+                continue
             rel = path.relative_to(root).as_posix()
             category = rel.split("/")[0] if "/" in rel else ROOT_CATEGORY
             found.append((rel, category, path.stat().st_size))

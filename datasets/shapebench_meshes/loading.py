@@ -49,6 +49,10 @@ def load_mesh_file(path: Path) -> trimesh.Trimesh:
     mesh = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
     if not (np.all(np.isfinite(mesh.vertices)) and _raw_vertices_finite(path, kwargs)):
         raise ObjectLoadError(f"mesh file {path} has NaN or infinite vertex coordinates")
+    if not mesh.area > 0:  # normalisation would divide by zero and sampling find no surface
+        raise ObjectLoadError(
+            f"mesh file {path} has zero surface area (every triangle is degenerate)"
+        )
     return mesh
 
 

@@ -26,6 +26,8 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
     context size, failures and their most common reasons (``--debug``: with tracebacks)."""
     import os
 
+    from shapebench.evaluation.runner import TOP_REASONS
+
     debug = bool(os.environ.get("SHAPEBENCH_DEBUG"))
     metric = outcome.primary_metric
     by_split = defaultdict(list)
@@ -73,6 +75,8 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
                 click.echo(f"    {count} x {reason}")
                 if debug and c.tracebacks.get(reason):
                     click.echo("      " + c.tracebacks[reason].replace("\n", "\n      "))
+            if len(c.reasons) >= TOP_REASONS:
+                click.echo(f"    (the {TOP_REASONS} most common reasons; all are in the table)")
             click.echo(f"    per-object table: {c.table_uri}")
         click.echo(f"  MLflow experiment {outcome.dataset.name}-{split} (id {exp_id})")
     click.echo("")

@@ -39,7 +39,9 @@ from shapebench.store.tracking import Tracker, experiment_name, flatten
 
 #: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
 EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluation.pictures.PICTURES_PER_CELL)
-TOP_REASONS = 3  # distinct failure reasons printed per cell
+#: Distinct failure reasons printed per cell: enough that a folder with a few broken files names
+#: every one of them, few enough that a dataset failing object by object stays readable.
+TOP_REASONS = 10
 #: Per-object column prefix holding the error of a metric that raised on that object.
 METRIC_ERROR = "metric_error."
 

@@ -39,6 +39,8 @@ def _check_mesh(mesh: trimesh.Trimesh) -> None:
         raise PreprocessError("mesh has no faces")
     if not np.all(np.isfinite(mesh.vertices)):
         raise PreprocessError("mesh has NaN or infinite vertex coordinates")
+    if not mesh.area > 0:
+        raise PreprocessError("mesh has zero surface area (every triangle is degenerate)")
 
 
 def prepare_mesh(
