@@ -59,6 +59,7 @@ BAD_PLUGIN = {
             register("ok-sphere", "shapebench_bad.methods:Sphere")
             register("nan-points", "shapebench_bad.methods:NaNPoints")
             register("unseeded", "shapebench_bad.methods:Unseeded")
+            register("spread-scaled", "shapebench_bad.methods:SpreadScaled")
             register("path-option", "shapebench_bad.methods:PathOption")
             register("torch-at-import", "shapebench_bad.torchy:TorchAtImport")
 
@@ -90,6 +91,15 @@ BAD_PLUGIN = {
         class Unseeded(Method):
             def complete(self, context, n_points):
                 return Completion(sphere(context, n_points, np.random.default_rng()))
+
+        class SpreadScaled(Method):
+            # Normalises by the context's spread: NaN when every point is the same.
+            def complete(self, context, n_points):
+                p = context.points
+                unit = (p - p.mean(axis=0)) / p.std(axis=0)
+                rng = np.random.default_rng(context.seed)
+                out = unit[rng.integers(len(p), size=n_points)] * p.std(axis=0) + p.mean(axis=0)
+                return Completion(out.astype(np.float32))
 
         @dataclass(frozen=True)
         class PathOptions:
@@ -173,6 +183,14 @@ def test_a_plugin_breaking_rules_fails_those_checks_with_reasons(shapebench, bad
     assert unseeded["deterministic"].startswith("FAIL")
     assert "context.seed" in unseeded["deterministic"]
 
+    spread = _status(out, "method spread-scaled")
+    assert spread["complete"].startswith("PASS")
+    assert spread["degenerate"].startswith("FAIL: a context of 50 identical points:")
+    assert "are NaN/inf" in spread["degenerate"]
+    assert _status(out, "method ok-sphere")["degenerate"].startswith(
+        "PASS: contexts of 50 points, duplicated: "
+    )
+
     path = _status(out, "method path-option")
     assert path["options"].startswith("FAIL") and "not a JSON value" in path["options"]
 
@@ -185,9 +203,9 @@ def test_a_plugin_breaking_rules_fails_those_checks_with_reasons(shapebench, bad
     assert constant["identical"].startswith("FAIL") and "expected 0" in constant["identical"]
 
     failed = [ln for ln in out.splitlines() if ln.startswith("FAILED ")]
-    assert len(failed) == 5, failed
+    assert len(failed) == 6, failed
     assert "FAILED method nan-points complete:" in out
-    assert re.match(r"\d+ passed, 5 failed, \d+ skipped in ", out.rstrip().splitlines()[-1])
+    assert re.match(r"\d+ passed, 6 failed, \d+ skipped in ", out.rstrip().splitlines()[-1])
 
 
 @pytest.mark.slow  # runs the CLI in a subprocess
@@ -203,6 +221,7 @@ def test_builtins_pass(shapebench):
         "train",
         "checkpoint",
         "complete",
+        "degenerate",
         "deterministic",
         "lightning",
     ]
@@ -210,7 +229,7 @@ def test_builtins_pass(shapebench):
     assert _status(res.stdout, "dataset synthetic")["splits"].startswith("PASS: 15 categories")
     metric = _status(res.stdout, "metric chamfer-l2")
     assert metric["identical"].startswith("PASS: 0 on a prediction identical to the ground truth")
-    assert res.stdout.rstrip().splitlines()[-1].startswith("16 passed, 2 skipped in ")
+    assert res.stdout.rstrip().splitlines()[-1].startswith("17 passed, 2 skipped in ")
 
 
 @pytest.mark.slow  # trains every built-in method for a few steps (about a minute)

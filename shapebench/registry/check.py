@@ -7,7 +7,8 @@ temporary folder, never in the user's cache):
 * every component: its modules import without torch or Lightning (in a fresh interpreter), the
   class implements its interface, and its options parse from ``KEY=VALUE`` strings and
   round-trip through the config that runs log;
-* a method: completes 50-point contexts into finite ``(n, 3)`` arrays of a sensible size, gives
+* a method: completes 50-point contexts into finite ``(n, 3)`` arrays of a sensible size, also
+  when the points are duplicated or all the same (or raises, a failed object), gives
   identical points for the same seed, uses one Lightning namespace; a trainable method trains
   for a few steps and a fresh instance reloads its checkpoint;
 * a dataset: gives categories and splits, objects that load in the normalised frame, and the
@@ -487,6 +488,7 @@ _METHOD_CHECKS = (
     "train",
     "checkpoint",
     "complete",
+    "degenerate",
     "deterministic",
     "lightning",
 )
@@ -522,7 +524,9 @@ def _method_steps(
         res, trained = _run("checkpoint", lambda: _reload(cls, options, path))
         yield res
         if trained is None:
-            yield from _skip_rest(("complete", "deterministic"), "no trained instance")
+            yield from _skip_rest(
+                ("complete", "degenerate", "deterministic"), "no trained instance"
+            )
             return
     else:
         yield from _skip_rest(("train", "checkpoint"), "does not train")
@@ -530,6 +534,11 @@ def _method_steps(
         "complete", lambda: _complete(trained if trained is not None else cls(options), env)
     )
     yield res
+    if outputs is None:
+        yield CheckResult("degenerate", SKIP, "nothing completed")
+    else:
+        method = trained if trained is not None else cls(options)
+        yield _run("degenerate", lambda: _degenerate(method, env))[0]
     if outputs is None:
         yield CheckResult("deterministic", SKIP, "nothing completed")
     else:
@@ -674,6 +683,42 @@ def _complete(method: Any, env: CheckEnv) -> tuple[str, list[Any]]:
     if raised:  # a tiny trained network may find no surface on some object: reported, allowed
         message += f"; {len(raised)} failed: {'; '.join(raised)}"
     return message, outputs
+
+
+def _degenerate(method: Any, env: CheckEnv) -> str:
+    """Contexts real data produces that a method may not expect: half the points duplicates of
+    the other half (a scan fused twice), and every point the same (a scanner's dead pixel). A
+    method may complete them or raise (the run records that object as failed, with the reason);
+    it may not return NaN or points far outside the unit sphere."""
+    import numpy as np
+
+    contexts, n_points = env.contexts()
+    ctx = contexts[0]
+    half = ctx.points[: (len(ctx.points) + 1) // 2]
+    cases = {
+        "duplicated": np.concatenate([half, half])[: len(ctx.points)],
+        "identical": np.repeat(ctx.points[:1], len(ctx.points), axis=0),
+    }
+    said = []
+    for name, points in cases.items():
+        normals = None
+        if ctx.normals is not None:  # the normals of the points the rows were copied from
+            rows = (
+                np.arange(len(points)) % len(half)
+                if name == "duplicated"
+                else np.zeros(len(points), dtype=int)
+            )
+            normals = ctx.normals[rows]
+        case = dataclasses.replace(ctx, points=points.astype(np.float32), normals=normals)
+        (out,) = _complete_all(method, [case], n_points)
+        if isinstance(out, Exception):
+            said.append(f"{name}: raised ({_describe(out)}), recorded as a failed object")
+            continue
+        problem = completion_problem(out, n_points)
+        if problem:
+            raise CheckFailed(f"a context of {len(points)} {name} points: {problem}")
+        said.append(f"{name}: {len(out.points)} finite points")
+    return f"contexts of {len(ctx.points)} points, " + "; ".join(said)
 
 
 def completion_problem(completion: Any, n_points: int) -> str | None:
