@@ -5,6 +5,13 @@ ends in one clear line or a per-object failure naming the object, and loses noth
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
 import pytest
 from conftest import TINY
 
@@ -61,3 +68,69 @@ def test_a_sweep_naming_a_method_that_is_not_installed_fails_before_any_work(sha
     res = shapebench("sweep", str(bad), "-q")
     _clean_error(res, "unknown method 'pointr-not-installed'", "available: ")
     assert shapebench.cell_runs("synthetic-trained", status=None) == []
+
+
+def test_the_slurm_launcher_without_submitit_says_how_to_install_it(shapebench):
+    # submitit is an optional extra; the suite installs it, so this interpreter hides it the way
+    # Python's import system marks a module as absent (a None entry in sys.modules).
+    code = (
+        "import sys; sys.modules['submitit'] = None\n"
+        "from shapebench.cli.app import main\n"
+        "sys.argv = ['shapebench', 'run', '-m', 'gauss', '-d', 'synthetic', '--contexts', '50',\n"
+        "            '--launcher', 'submitit-local']\n"
+        "main()\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code],
+        env=shapebench.env(),
+        cwd=shapebench.workspace,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    _clean_error(
+        res, "the slurm and submitit-local launchers need submitit, which is not installed"
+    )
+    assert "pip install 'shapebench[cluster]'" in res.stderr
+    assert shapebench.cell_runs("synthetic-trained", status=None) == []
+
+
+def test_an_unreadable_mesh_file_is_named(tmp_path):
+    """Permissions are enforced for users other than root only: as root (CI's containers), the
+    read happens in a child process that has dropped to the unprivileged user 'nobody'."""
+    from shapebench_meshes.loading import load_mesh_file
+
+    from shapebench.api.dataset import ObjectLoadError
+
+    folder = Path(tempfile.mkdtemp(prefix="shapebench-perm-"))  # outside root's 0700 tmp_path
+    try:
+        folder.chmod(0o755)
+        path = folder / "locked.obj"
+        path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+        path.chmod(0)
+        read, write = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the child: read as an unprivileged user, report the error
+            os.close(read)
+            try:
+                if os.geteuid() == 0:
+                    os.setgid(65534)
+                    os.setuid(65534)
+                load_mesh_file(path)
+                message = "read"
+            except ObjectLoadError as exc:
+                message = str(exc)
+            except BaseException as exc:  # noqa: BLE001 - reported to the parent as a failure
+                message = f"other: {type(exc).__name__}: {exc}"
+            os.write(write, message.encode())
+            os._exit(0)
+        os.close(write)
+        with os.fdopen(read) as pipe:
+            message = pipe.read()
+        os.waitpid(pid, 0)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    assert (
+        message
+        == f"cannot read mesh file {path}: PermissionError: [Errno 13] Permission denied: '{path}'"
+    )
