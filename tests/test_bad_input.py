@@ -134,3 +134,53 @@ def test_an_unreadable_mesh_file_is_named(tmp_path):
         message
         == f"cannot read mesh file {path}: PermissionError: [Errno 13] Permission denied: '{path}'"
     )
+
+
+# -- the store failing under a run ---------------------------------------------------------------
+
+
+def _cells(shapebench, experiment: str) -> list[tuple[int, str]]:
+    """(context size, status) of every cell run of ``experiment``."""
+    return sorted(
+        (int(r.data.tags["context_size"]), r.info.status)
+        for r in shapebench.cell_runs(experiment, status=None)
+    )
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 1.5 MB tmpfs: room for the MLflow database and a cell or two, not for a run."""
+    mount = tmp_path / "small-disk"
+    mount.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1500k", "tmpfs", str(mount)],
+        capture_output=True,
+        text=True,
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({done.stderr.strip() or 'mount failed'})")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+def test_a_full_disk_is_one_line_and_the_rerun_completes_every_cell_once(shapebench, small_disk):
+    shapebench.workspace = small_disk
+    run = ("run", "-m", "gauss", "-d", "synthetic", "--split", "trained", *TINY, "-q")
+    contexts = ("--contexts", "50,100,300,1000")
+    res = shapebench(*run, *contexts)
+    _clean_error(res, "Error: no space left ")
+    assert "then run the same command again: finished cells are kept" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 2, res.stderr  # the error and its hint
+
+    # With room again (the same tmpfs, made larger), the same command finishes the rest.
+    subprocess.run(["mount", "-o", "remount,size=64m", str(small_disk)], check=True)
+    res = shapebench(*run, *contexts)
+    assert res.returncode == 0, res.stdout + res.stderr
+    finished = [k for k, status in _cells(shapebench, "synthetic-trained") if status == "FINISHED"]
+    assert finished == [50, 100, 300, 1000]  # every cell once
+    assert "RUNNING" not in {s for _, s in _cells(shapebench, "synthetic-trained")}
+    # The store reads back whole: the leaderboard of those cells.
+    res = shapebench("leaderboard", "-d", "synthetic", "--split", "trained", "--out", "boards")
+    assert res.returncode == 0, res.stdout + res.stderr

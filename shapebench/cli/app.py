@@ -42,6 +42,16 @@ class Group(click.Group):
                 "\nInterrupted: finished cells are kept; rerun the command to resume.", err=True
             )
             sys.exit(130)
+        except Exception as exc:
+            # A full disk or a tracking server gone away, where no room said so already.
+            from shapebench.store.failures import store_failure
+
+            failure = store_failure(exc)
+            if failure is None or os.environ.get("SHAPEBENCH_DEBUG"):
+                raise
+            click.secho(f"Error: {failure.message}", fg="red", err=True)
+            click.echo(f"  hint: {failure.hint}", err=True)
+            sys.exit(2)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -272,4 +282,7 @@ def main() -> None:
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
     logging.getLogger("alembic").setLevel(logging.WARNING)
+    # MLflow logs a database error (several lines) before raising it; the error itself is
+    # reported once, in one line, by Group.invoke (--debug shows its traceback).
+    logging.getLogger("mlflow.store.db.utils").setLevel(logging.CRITICAL)
     cli(prog_name="shapebench")

@@ -33,6 +33,7 @@ from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.registry.variant import Variant
 from shapebench.store import presentation
+from shapebench.store.failures import store_failure
 from shapebench.store.provenance import git_commit
 from shapebench.store.records import CellRecord
 from shapebench.store.tracking import Tracker, experiment_name, flatten
@@ -386,7 +387,17 @@ class Runner:
 
     def run(self, plan: RunPlan, make_method: Callable[[], Method]) -> list[CellResult]:
         """Run the plan's pending cells; ``make_method`` is called only if some cell is pending
-        (for trainable methods it trains or loads the checkpoint)."""
+        (for trainable methods it trains or loads the checkpoint). A full disk or a tracking
+        server that stops answering is raised as one :class:`StoreFailure` saying so."""
+        try:
+            return self._run_plan(plan, make_method)
+        except Exception as exc:
+            failure = store_failure(exc, self.tracker.uri)
+            if failure is None or failure is exc:
+                raise
+            raise failure from exc
+
+    def _run_plan(self, plan: RunPlan, make_method: Callable[[], Method]) -> list[CellResult]:
         method: Method | None = None
         results: list[CellResult] = []
         cache = ObjectCache(plan.dataset)
@@ -495,9 +506,9 @@ class Runner:
 
                 with wait_lock(cell_lock_path(settings, key), waiting):
                     compute(seed, size, cfg, key)
-        except BaseException:
+        except BaseException as exc:
             if parent is not None:
-                self.tracker.end(parent, "KILLED")
+                self.tracker.end_after(parent, exc)
             raise
         finally:
             if parent_lock is not None:
@@ -651,8 +662,8 @@ class Runner:
                 f"{self._label(plan)} k={size}",
                 spare[: max(EXAMPLE_PLYS - len(examples), 0)],
             )
-        except BaseException:
-            tr.end(run_id, "KILLED")
+        except BaseException as exc:
+            tr.end_after(run_id, exc)
             raise
         tr.end(run_id)
         uri = tr.artifact_uri(run_id, "per_object.csv")

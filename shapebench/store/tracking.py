@@ -17,6 +17,7 @@ MLflow >= 3.13 refuses the implicit ``./mlruns`` file store.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -215,6 +216,19 @@ class Tracker:
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)
+
+    def end_after(self, run_id: str, exc: BaseException, status: str = "KILLED") -> None:
+        """Mark ``run_id`` ended by ``exc`` (in an ``except`` block, before re-raising it). When
+        the store itself failed (a full disk, a server that stopped answering) nothing is written:
+        it would fail again, or retry for minutes; the run is left RUNNING and the next run of its
+        cell marks it abandoned. Any other failure to mark it is left to that run too, so that
+        ``exc``, the error that matters, is the one raised."""
+        from shapebench.store.failures import store_failure
+
+        if store_failure(exc, self.uri) is not None:
+            return
+        with contextlib.suppress(Exception):  # exc is re-raised by the caller; see above
+            self.end(run_id, status)
 
     # -- reading and annotating runs, for the rooms above the store --------------------------
 

@@ -281,7 +281,7 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
     except BaseException as exc:
         if tracker is not None:
             interrupted = isinstance(exc, (TrainingInterrupted, KeyboardInterrupt))
-            tracker.end(run_id, "KILLED" if interrupted else "FAILED")
+            tracker.end_after(run_id, exc, "KILLED" if interrupted else "FAILED")
         raise
     record = {"key": key, "path": str(path), "run_id": run_id}  # weights: local (no "weights")
     if _global_rank() == 0:
