@@ -10,10 +10,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
-from conftest import TINY
+from browser_support import stop_server, wait_http
+from conftest import TINY, free_port
 
 pytestmark = pytest.mark.slow  # every test runs the CLI in a subprocess
 
@@ -184,3 +186,91 @@ def test_a_full_disk_is_one_line_and_the_rerun_completes_every_cell_once(shapebe
     # The store reads back whole: the leaderboard of those cells.
     res = shapebench("leaderboard", "-d", "synthetic", "--split", "trained", "--out", "boards")
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def _mlflow_server(root: Path, port: int) -> subprocess.Popen:
+    """A real `mlflow server` on 127.0.0.1:port, its store in ``root`` (kept across restarts)."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "mlflow",
+            "server",
+            "--backend-store-uri",
+            f"sqlite:///{root / 'server.db'}",
+            "--artifacts-destination",
+            str(root / "server-artifacts"),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--workers",
+            "1",
+        ],
+        env=dict(os.environ, MLFLOW_SERVER_ENABLE_JOB_EXECUTION="false"),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    wait_http(f"http://127.0.0.1:{port}/health", proc)
+    return proc
+
+
+@pytest.mark.server
+def test_a_tracking_server_dying_mid_sweep_is_one_line_and_the_rerun_loses_nothing(
+    shapebench, tmp_path
+):
+    from mlflow.tracking import MlflowClient
+
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}"
+    # MLflow retries a request that finds no server 7 times over minutes by default; the test
+    # allows one quick retry (users tune the same variables).
+    shapebench.extra_env = {
+        "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "1",
+        "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "0",
+    }
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(
+        "methods: [gauss, {name: gauss, options: {sigma: 0.05}}]\n"
+        "datasets:\n  - name: synthetic\n    options: {test_per_category: 1, "
+        "train_per_category: 1, surface_candidates: 3000, gt_points: 2000}\n"
+        "splits: [trained]\ncontexts: [50, 100, 300, 1000]\nseeds: [0, 1]\n"
+    )
+    server = _mlflow_server(tmp_path, port)
+    try:
+        sweeping = shapebench.popen("sweep", str(sweep), "--tracking-uri", uri, "-q")
+        client = MlflowClient(uri)
+        deadline = time.monotonic() + 240
+        finished: list = []
+        while not finished and sweeping.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+            exp = client.get_experiment_by_name("synthetic-trained")
+            if exp is not None:
+                finished = client.search_runs(
+                    [exp.experiment_id], "attributes.status = 'FINISHED'", max_results=1
+                )
+        assert finished, "no cell finished before the server was to be stopped"
+        stop_server(server)  # while the sweep still has cells to run
+        out, err = sweeping.communicate(timeout=300)
+        assert sweeping.returncode == 2, out + err
+        assert "Traceback" not in err, err
+        assert f"Error: the MLflow tracking server at {uri} stopped answering" in err, err
+        assert "then run the same command again: finished cells are kept" in err
+
+        # The server back on its store: the same command finishes, every cell once.
+        server = _mlflow_server(tmp_path, port)
+        res = shapebench("sweep", str(sweep), "--tracking-uri", uri, "-q", timeout=600)
+        assert res.returncode == 0, res.stdout + res.stderr
+        exp = client.get_experiment_by_name("synthetic-trained")
+        runs = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'")
+        cells = [
+            (r.data.tags["variant.label"], r.data.tags["context_size"], r.data.tags["seed"])
+            for r in runs
+            if r.data.tags.get("context_size")
+        ]
+        assert len(cells) == len(set(cells)) == 2 * 4 * 2, sorted(cells)
+    finally:
+        if server.poll() is None:
+            stop_server(server)

@@ -18,6 +18,7 @@ from shapebench.api.protocol import DEFAULT_FRAME, Protocol
 from shapebench.config import Settings, read_yaml
 from shapebench.evaluation.orchestrate import EvalOutcome, EvalRequest, evaluate
 from shapebench.registry.discovery import get_registry
+from shapebench.store.failures import StoreFailure
 from shapebench.store.tracking import Tracker
 
 
@@ -267,6 +268,8 @@ def run_sweep(
             yield evaluate(
                 request(spec, m, ds, force, quiet, retrain), settings, trainer_for_seed, tracker
             )
+        except StoreFailure:
+            raise  # the store failed under every method alike: the rest could not be recorded
         except ShapebenchError as exc:  # one method failing must not stop the others
             failures.append(f"{m.name} on {ds.name}: {exc.message}")
             if on_error is not None:
