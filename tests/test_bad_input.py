@@ -274,3 +274,24 @@ def test_a_tracking_server_dying_mid_sweep_is_one_line_and_the_rerun_loses_nothi
     finally:
         if server.poll() is None:
             stop_server(server)
+
+
+def test_a_parent_left_running_after_the_last_cell_is_closed_by_the_next_run(shapebench):
+    """A process killed between its last cell and closing its parent run leaves the parent
+    RUNNING; the next run finds every cell done and starts no parent of its own, and must still
+    close it (the soak test met this once in two runs)."""
+    run = ("run", "-m", "gauss", "-d", "synthetic", "--split", "trained", *TINY, "-q")
+    res = shapebench(*run, "--contexts", "50")
+    assert res.returncode == 0, res.stderr
+    client = shapebench.client()
+    exp = client.get_experiment_by_name("synthetic-trained")
+    parents = client.search_runs([exp.experiment_id], "tags.`shapebench.kind` = 'parent'")
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED"
+    # What the kill leaves: the parent RUNNING, its cells finished.
+    client.update_run(parents[0].info.run_id, status="RUNNING")
+
+    res = shapebench(*run, "--contexts", "50")
+    assert res.returncode == 0, res.stderr
+    assert "cached" in res.stdout
+    status = client.get_run(parents[0].info.run_id).info.status
+    assert status == "KILLED"

@@ -428,6 +428,7 @@ class Runner:
                     )
                 )
             if not pending:
+                self._close_stale_parents(plan, split, exp_id)
                 continue
             cached = [r for r in results if r.split == split and r.skipped]
             check_context_sizes(
@@ -519,13 +520,9 @@ class Runner:
             self.tracker.end(parent)
         return sorted(results, key=lambda r: (r.seed, r.context_size))
 
-    def _start_parent(self, plan: RunPlan, split: str, exp_id: str):
-        """The parent run of this plan's new cells on ``split``, and the lock that shows it is
-        alive: RUNNING parents of the same key are marked KILLED only when nobody holds it."""
-        from shapebench.store.locks import try_lock
-        from shapebench.store.tracking import cell_lock_path
-
-        parent_key = stable_hash(
+    @staticmethod
+    def _parent_key(plan: RunPlan, split: str) -> str:
+        return stable_hash(
             {
                 "method": plan.method.config(),
                 "variant": plan.variant.key if plan.variant else None,
@@ -533,6 +530,27 @@ class Runner:
                 "split": split,
             }
         )
+
+    def _close_stale_parents(self, plan: RunPlan, split: str, exp_id: str) -> None:
+        """Mark KILLED the parents of ``split`` left RUNNING by a process killed after its last
+        cell, when nobody holds their lock. A run that finds every cell done starts no parent
+        of its own, so this is the only moment it can close them."""
+        from shapebench.store.locks import try_lock
+        from shapebench.store.tracking import cell_lock_path
+
+        parent_key = self._parent_key(plan, split)
+        lock = try_lock(cell_lock_path(self.tracker.settings, "parent-" + parent_key))
+        if lock is not None:
+            with lock:
+                presentation.abandon_stale_parents(self.tracker, exp_id, parent_key)
+
+    def _start_parent(self, plan: RunPlan, split: str, exp_id: str):
+        """The parent run of this plan's new cells on ``split``, and the lock that shows it is
+        alive: RUNNING parents of the same key are marked KILLED only when nobody holds it."""
+        from shapebench.store.locks import try_lock
+        from shapebench.store.tracking import cell_lock_path
+
+        parent_key = self._parent_key(plan, split)
         lock = try_lock(cell_lock_path(self.tracker.settings, "parent-" + parent_key))
         if lock is not None:
             presentation.abandon_stale_parents(self.tracker, exp_id, parent_key)
