@@ -49,6 +49,8 @@ DIRECTIONS: dict[str, str] = {
     "gt->pred": "from each ground-truth point to the prediction only (completeness, recall)",
     "pred->gt": "from each predicted point to the ground truth only (accuracy, precision)",
     "none": "not a comparison of two point sets",
+    "matched": "both sets at once, each point paired with one point of the other set by a "
+    "one-to-one matching (earth mover's distance)",
 }
 
 #: ``combine``: how a symmetric metric joins its two directions.
@@ -257,6 +259,8 @@ def _body(card: MetricCard) -> str:
         what = "Euclidean NN distances"
     if card.reduction == "none":
         per_set = ""
+    elif card.direction == "matched":
+        per_set = f", {card.reduction} over the matched pairs"
     elif card.reduction == "fraction":
         per_set = f", fraction below {card.threshold:g} per set"
     else:
@@ -270,7 +274,7 @@ def _body(card: MetricCard) -> str:
         }.get(card.combine, card.combine)
         if card.halved:
             joined += ", halved"
-    elif card.direction == "none":
+    elif card.direction in ("none", "matched"):  # a matching pairs the sets in one go
         joined = ""
     else:
         joined = card.direction
@@ -292,6 +296,11 @@ class Metric(ABC):
     description: ClassVar[str] = ""
     #: Whether larger values are better; the card's ``higher_is_better`` must agree.
     higher_is_better: ClassVar[bool] = False
+    #: Whether a run that names no metric computes this one. False for metrics computed on
+    #: request only (``--metric NAME``): costly ones (EMD) and other papers' conventions. The
+    #: metrics a run computes are part of its cell keys, so a new default metric would make
+    #: every stored cell a different cell.
+    by_default: ClassVar[bool] = True
 
     @abstractmethod
     def card(self, eval_points: int) -> MetricCard:

@@ -448,7 +448,8 @@ def render_markdown(
         "",
         f"**Protocol**: {board.protocol}; distances in the {FRAMES[board.frame][1]}.",
         "",
-        f"Raw: mean ± std over {samples} of {board.metric} {scale_txt}. Normalised: per object "
+        f"Raw: mean ± std over {samples} of {board.metric}{' ' + scale_txt if scale_txt else ''}"
+        ". Normalised: per object "
         f"divided by `{board.reference}` on the same object{same_seed} and context size, then "
         "mean ± std (the paper's eq. 8).",
         "",

@@ -183,7 +183,9 @@ def frame_factor(card: Any) -> str:
             "not a fixed factor: the threshold is a distance in the frame of the run, so the "
             "same completion counts other points; compare values of one frame only"
         )
-    return "the same in every frame (not a distance)"
+    # Not a distance, but it may still depend on the scale (DCD's exp(-alpha d^2)): no factor
+    # can be promised from the card.
+    return "no fixed factor (not a distance; it may still depend on scale): compare one frame"
 
 
 def echo_frames(echo: Callable[[str], None]) -> None:

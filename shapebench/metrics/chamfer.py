@@ -7,6 +7,9 @@ closest point of S:
 * ``chamfer-l1``  = mean_{g in G} d(g, P)   + mean_{p in P} d(p, G)          (MSC eq. 7 as written)
 * ``chamfer-l2-asym`` / ``chamfer-l1-asym`` = the first term only (ground truth to prediction),
   the paper's *asymmetric* Chamfer for ICL-NUIM, where the ground truth covers only part of a scene.
+* ``chamfer-l1-pointr`` = 1/2 (mean_{g in G} d(g, P) + mean_{p in P} d(p, G)): the CD-L1 of PCN
+  and PoinTr and the Chamfer-L1 of ConvONet, exactly half of ``chamfer-l1`` on the same points.
+  Computed on request (``--metric chamfer-l1-pointr``), not by default.
 
 Equation 7 divides each sum over one set by the size of the *other* set. With 30k ground-truth
 points and 16384 PCN points that would weight the two directions unequally for no stated reason,
@@ -52,6 +55,8 @@ class Chamfer(Metric):
 
     power: ClassVar[int] = 2
     symmetric: ClassVar[bool] = True
+    #: Whether the symmetric sum is multiplied by 1/2 (PoinTr's and ConvONet's convention).
+    halved: ClassVar[bool] = False
 
     def card(self, eval_points: int) -> MetricCard:
         return MetricCard(
@@ -59,7 +64,7 @@ class Chamfer(Metric):
             power=self.power,
             reduction="mean",
             direction="symmetric" if self.symmetric else "gt->pred",
-            halved=False,
+            halved=self.halved,
             scale=1000.0,
             frame=UNIT_SPHERE_FRAME,
             eval_points=eval_points,
@@ -69,7 +74,7 @@ class Chamfer(Metric):
         value = float(np.mean(gt_to_pred(prediction, ground_truth) ** self.power))
         if self.symmetric:
             value += float(np.mean(pred_to_gt(prediction, ground_truth) ** self.power))
-        return value
+        return 0.5 * value if self.halved else value
 
 
 class ChamferL2(Chamfer):
@@ -96,3 +101,14 @@ class ChamferL1Asym(Chamfer):
     description = "Euclidean distances from ground truth to prediction only"
     power = 1
     symmetric = False
+
+
+class ChamferL1PoinTr(Chamfer):
+    name = "chamfer-l1-pointr"
+    description = (
+        "Euclidean distances, mean per set, both directions summed and halved: the CD-L1 of "
+        "PCN/PoinTr and ConvONet's Chamfer-L1 (half of chamfer-l1; on request)"
+    )
+    power = 1
+    halved = True
+    by_default = False

@@ -10,6 +10,10 @@ def shapebench_register_metrics(register):
         ("chamfer-l1", "ChamferL1"),
         ("chamfer-l2-asym", "ChamferL2Asym"),
         ("chamfer-l1-asym", "ChamferL1Asym"),
+        ("chamfer-l1-pointr", "ChamferL1PoinTr"),
     ]:
         register(name, f"shapebench.metrics.chamfer:{cls}")
     register("fscore", "shapebench.metrics.fscore:FScore")
+    # On request only (Metric.by_default): the field's other conventions, and the costly EMD.
+    register("emd", "shapebench.metrics.emd:EMD")
+    register("dcd", "shapebench.metrics.dcd:DCD")

@@ -148,7 +148,12 @@ def resolve_dataset(
 
 
 def resolve_metrics(registry: Registry, names: list[str] | None) -> list[Metric]:
-    names = names or registry.names("metric")
-    if not names:
+    """The metrics ``names`` (``--metric``), or every installed metric computed by default
+    (:attr:`Metric.by_default`) when none is named."""
+    if names:
+        return [registry.load("metric", n)() for n in names]
+    classes = [registry.load("metric", n) for n in registry.names("metric")]
+    metrics = [cls() for cls in classes if getattr(cls, "by_default", True)]
+    if not metrics:
         raise ConfigError("no metric is installed", "reinstall shapebench: it provides chamfer-l2")
-    return [registry.load("metric", n)() for n in names]
+    return metrics

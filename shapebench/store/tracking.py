@@ -263,6 +263,9 @@ class Tracker:
         self.client.log_artifact(run_id, str(file))
 
     def download_artifact(self, run_id: str, name: str, dst: Path) -> Path:
+        # MLflow draws a progress bar per download (read at call time): in a notebook reading a
+        # hundred cells that is a hundred bars. The command line turns them off for good.
+        os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
         return Path(self.client.download_artifacts(run_id, name, str(dst)))
 
     def list_artifacts(self, run_id: str, folder: str) -> list[str]:
