@@ -55,7 +55,7 @@ bench=$!
 $py -m shapebench prepare -d synthetic -D train_per_category="${TRAIN_PER_CATEGORY:-200}" \
     -m igr -m deepsdf -m msc -m occnet -m pcn -j "$(nproc)" -q 2>&1 | tail -3
 $py -m shapebench prepare -d synthetic -m igr -m deepsdf -m msc -m occnet -m pcn \
-    -j "$(nproc)" -q 2>&1 | tail -3
+    --split validation,trained,novel -j "$(nproc)" -q 2>&1 | tail -3
 for _ in $(seq 45); do # the bench has the GPU to itself for at most 45 s more
     kill -0 $bench 2>/dev/null || break
     sleep 1

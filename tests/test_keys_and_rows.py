@@ -601,3 +601,36 @@ def test_training_child_imports_the_same_shapebench_as_its_parent(with_example):
     )
     assert res.returncode == 0, res.stderr
     assert "shadow" not in res.stderr
+
+
+@pytest.mark.slow  # runs the CLI in subprocesses
+def test_the_validation_split_is_apart_from_the_test_objects_and_run_only_when_named(shapebench):
+    from shapebench.api.types import TRAIN, TRAINED, VALIDATION
+    from shapebench.config import make_settings
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset
+
+    settings = make_settings(None, str(shapebench.cache), None, shapebench.workspace)
+    options = {"test_per_category": 2, "train_per_category": 3}
+    ds = resolve_dataset(get_registry(), "synthetic", settings, None, options)
+    ids = {s: {r.id for r in ds.objects(s)} for s in (TRAIN, TRAINED, VALIDATION)}
+    assert len(ids[VALIDATION]) == 2 * 11  # test_per_category of each trained category
+    assert all("/val-" in i for i in ids[VALIDATION])
+    assert not ids[VALIDATION] & (ids[TRAIN] | ids[TRAINED])
+    # Other objects, not renamed copies: their meshes differ from the test objects'.
+    val, test = ds.mesh(ds.objects(VALIDATION)[0]), ds.mesh(ds.objects(TRAINED)[0])
+    assert val.vertices.shape != test.vertices.shape or not np.allclose(val.vertices, test.vertices)
+
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50", "-q")
+    assert res.returncode == 0, res.stderr
+    assert "synthetic/validation" not in res.stdout  # not a default split, never on a table
+    assert shapebench.cell_runs("synthetic-validation") == []
+    res = shapebench(
+        "run", "-m", "gauss", "-d", "synthetic", *TINY, "--contexts", "50", "--split", "validation"
+    )
+    assert res.returncode == 0, res.stderr
+    assert "synthetic/validation: 11 objects in 11 categories (1 validation object" in res.stdout
+    runs = shapebench.cell_runs("synthetic-validation")
+    assert len(runs) == 1
+    res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "valid")
+    assert res.returncode == 2 and "use one of: trained, novel, validation" in res.stderr

@@ -4,7 +4,9 @@ Nothing to download: objects are generated from (category, split, index, seed) b
 :mod:`shapebench_synthetic.shapes`, then preprocessed like ShapeNet (the paper's §4.1) and cached.
 Categories are split into *trained* and *novel* ones as the paper splits ShapeNet; the trained
 categories have ``train_per_category`` training and ``test_per_category`` test objects, the novel
-ones only test objects.
+ones only test objects. The ``validation`` split holds ``test_per_category`` more objects of each
+trained category, generated apart from both (ids ``<category>/val-NNN``): options are chosen on
+it, never on test objects, and it is evaluated only when named (``--split validation``).
 """
 
 from __future__ import annotations
@@ -14,7 +16,15 @@ from importlib.metadata import version
 from typing import ClassVar
 
 from shapebench.api.dataset import MeshDataset, MeshOptions
-from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
+from shapebench.api.types import (
+    NOVEL,
+    TRAIN,
+    TRAINED,
+    VALIDATION,
+    Category,
+    ObjectRef,
+    Supervision,
+)
 from shapebench.hashing import stable_seed
 from shapebench_synthetic import shapes
 
@@ -47,6 +57,8 @@ class SyntheticDataset(MeshDataset):
     )
     Options: ClassVar[type] = SyntheticOptions
     provides = frozenset({Supervision.SURFACE_POINTS})
+    # Its size follows test_per_category: a new option would change every synthetic key.
+    validation_splits = (VALIDATION,)
 
     @property
     def version(self) -> str:
@@ -62,8 +74,10 @@ class SyntheticDataset(MeshDataset):
             cat_split, count, prefix = TRAINED, self.options.train_per_category, "train"
         elif split in (TRAINED, NOVEL):
             cat_split, count, prefix = split, self.options.test_per_category, "test"
+        elif split == VALIDATION:
+            cat_split, count, prefix = TRAINED, self.options.test_per_category, "val"
         else:
-            raise ValueError(f"unknown split {split!r}; use train, trained or novel")
+            raise ValueError(f"unknown split {split!r}; use train, trained, novel or validation")
         return [
             ObjectRef(f"{cat.name}/{prefix}-{i:03d}", cat.name)
             for cat in self.categories()
@@ -75,6 +89,11 @@ class SyntheticDataset(MeshDataset):
         if split == TRAIN:
             return []
         n = self.options.test_per_category
+        if split == VALIDATION:
+            return [
+                f"{n} validation object{'s' if n != 1 else ''} per trained category, apart from "
+                "the test objects: for choosing options, not for reporting"
+            ]
         return [
             f"{n} test object{'s' if n != 1 else ''} per category; "
             "-D test_per_category=N for a larger benchmark"

@@ -45,8 +45,10 @@ class Dataset(ABC):
     ``Options`` (a dataclass, see :mod:`shapebench.api.options`), ``provides`` (the supervision
     kinds it
     can produce for training), ``default_metric`` (what leaderboards rank by), ``eval_splits``
-    (the splits a run evaluates by default) and ``needs_data_root`` (whether ``--data-root`` is
-    required, for datasets read from a user's local copy).
+    (the splits a run evaluates by default), ``validation_splits`` (splits of objects disjoint
+    from the test objects, for choosing options; evaluated only when named) and
+    ``needs_data_root`` (whether ``--data-root`` is required, for datasets read from a user's
+    local copy).
     """
 
     name: ClassVar[str] = ""
@@ -56,6 +58,9 @@ class Dataset(ABC):
     provides: ClassVar[frozenset[Supervision]] = frozenset({Supervision.SURFACE_POINTS})
     default_metric: ClassVar[str] = "chamfer-l2"
     eval_splits: ClassVar[tuple[str, ...]] = EVAL_SPLITS
+    #: Splits for choosing options, disjoint from every test split (``VALIDATION``): a run
+    #: evaluates them only when it names them, so no default table ever reports them.
+    validation_splits: ClassVar[tuple[str, ...]] = ()
     #: Option overrides that make the dataset tiny for ``shapebench check`` and
     #: :mod:`shapebench.registry.testing` (few objects, few points).
     check_options: ClassVar[dict[str, Any]] = {}

@@ -20,6 +20,9 @@ TRAIN = "train"
 TRAINED = "trained"
 NOVEL = "novel"
 EVAL_SPLITS = (TRAINED, NOVEL)
+#: Objects kept apart from the test objects for choosing options (profiles, the ladder, method
+#: defaults): evaluated only when asked for by name (``--split validation``), never reported.
+VALIDATION = "validation"
 ALL_SPLITS = (TRAIN, TRAINED, NOVEL)
 
 

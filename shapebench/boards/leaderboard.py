@@ -653,7 +653,8 @@ def declared_splits(dataset: str) -> tuple[str, ...]:
     from shapebench.registry.discovery import get_registry
 
     try:
-        return tuple(get_registry().load("dataset", dataset).eval_splits)
+        cls = get_registry().load("dataset", dataset)
+        return (*cls.eval_splits, *cls.validation_splits)
     except Exception:  # not installed, or a plugin that fails to load: the store still reads
         return EVAL_SPLITS
 

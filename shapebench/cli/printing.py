@@ -141,7 +141,13 @@ def describe_kind(kind: str, profile: str | None = None) -> None:
         elif kind == "dataset":
             _echo_categories(cls)
             click.echo(
-                f"    splits: {', '.join(cls.eval_splits)}; default metric: "
+                f"    splits: {', '.join(cls.eval_splits)}"
+                + (
+                    f" (for choosing options: {', '.join(cls.validation_splits)})"
+                    if cls.validation_splits
+                    else ""
+                )
+                + f"; default metric: "
                 f"{cls.default_metric}; needs --data-root: "
                 f"{'yes' if cls.needs_data_root else 'no'}"
             )

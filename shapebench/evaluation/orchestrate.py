@@ -77,11 +77,12 @@ class EvalOutcome:
 def _check_splits(dataset: Dataset, splits: list[str] | None) -> list[str]:
     if not splits:
         return list(dataset.eval_splits)
-    unknown = [s for s in splits if s not in dataset.eval_splits]
+    allowed = [*dataset.eval_splits, *dataset.validation_splits]
+    unknown = [s for s in splits if s not in allowed]
     if unknown:
         raise ShapebenchError(
             f"dataset {dataset.name!r} has no evaluation split {', '.join(unknown)}",
-            f"use one of: {', '.join(dataset.eval_splits)}",
+            f"use one of: {', '.join(allowed)}",
         )
     empty = [s for s in splits if not dataset.objects(s)]
     if empty:  # asked for by name: an empty split is a mistake, not something to skip quietly

@@ -122,7 +122,11 @@ def _select(
     dataset: Dataset, splits: list[str], categories: Iterable[str] | None
 ) -> tuple[list[ObjectRef], PrepareReport]:
     """The objects to prepare, each once, in split order; unknown splits or categories raise."""
-    allowed = [*dataset.eval_splits, *([TRAIN] if TRAIN not in dataset.eval_splits else [])]
+    allowed = [
+        *dataset.eval_splits,
+        *dataset.validation_splits,
+        *([TRAIN] if TRAIN not in dataset.eval_splits else []),
+    ]
     unknown = [s for s in splits if s not in allowed]
     if unknown:
         raise ConfigError(
