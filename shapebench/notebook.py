@@ -24,7 +24,7 @@ import pandas as pd
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import TrainerOptions
-from shapebench.api.protocol import DEFAULT_FRAME, Protocol
+from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME, Protocol
 from shapebench.boards.frames import RESULT_COLUMNS, results_of_runs
 from shapebench.config import make_settings
 from shapebench.evaluation.orchestrate import EvalRequest
@@ -58,6 +58,9 @@ def evaluate(
     metrics: Sequence[str] | None = None,
     frame: str = DEFAULT_FRAME,
     context_normals: bool = False,
+    protocol: str = DEFAULT_CONTEXT,
+    crop_fraction: float = 0.0,
+    context_noise: float = 0.0,
     checkpoint: str | Path | None = None,
     label: str | None = None,
     trainer: Mapping[str, Any] | None = None,
@@ -77,6 +80,8 @@ def evaluate(
     the dataset's evaluation splits), ``options`` ``-O`` (the method's options, e.g.
     ``{"sigma": 0.05}``), ``dataset_options`` ``-D``, ``metrics`` ``--metric`` (default: every
     installed metric), ``frame`` ``--frame``, ``context_normals`` ``--context-normals``,
+    ``protocol``, ``crop_fraction``, ``context_noise`` ``--protocol``, ``--crop-fraction``,
+    ``--context-noise``,
     ``checkpoint`` ``--checkpoint``, ``label`` ``--label``, ``trainer`` the trainer options
     (``{"max_steps": 500, "accelerator": "cpu"}``, as ``--max-steps``, ``--accelerator``, ...),
     ``force`` ``--force``, ``retrain`` ``--retrain``, ``progress=False`` ``--quiet``; ``profile``,
@@ -104,7 +109,13 @@ def evaluate(
         checkpoint=str(checkpoint) if checkpoint is not None else None,
         force=force,
         quiet=not progress,
-        protocol=Protocol(context_normals=context_normals, frame=frame),
+        protocol=Protocol(
+            context_normals=context_normals,
+            frame=frame,
+            context=protocol,
+            crop_fraction=crop_fraction,
+            context_noise=context_noise,
+        ),
         label=label,
         retrain=retrain,
     )

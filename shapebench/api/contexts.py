@@ -9,6 +9,15 @@ depend on the device. The indices are stored next to the object's cached arrays 
 and read back afterwards; their SHA-256 goes into every run's tags.
 
 Methods that need randomness get ``Context.seed``, derived from (dataset, object, size, run seed).
+
+Under ``--protocol crop`` (:mod:`shapebench.api.protocol`) the points come from the object's
+complete ground-truth cloud instead: the ``crop_fraction`` of its points nearest one of 8 fixed
+viewpoints (the cube's corners, one chosen per object by a seed) are removed, and the context of
+size k is the first k points of a farthest-point order of the rest, from a seeded start. A
+farthest-point order is nested as well (its first 50 points are the farthest-point sample of 50),
+and it is stored like the sparse order, as long as the largest size asked for. ``context_noise``
+adds seeded Gaussian noise, one draw per point of the source cloud, so a point carries the same
+noise at every size and for every method.
 """
 
 from __future__ import annotations
@@ -20,10 +29,44 @@ from pathlib import Path
 import numpy as np
 
 from shapebench.api.errors import describe, warn_corrupt
+from shapebench.api.protocol import Protocol
 from shapebench.api.types import Context, ObjectData
 from shapebench.hashing import array_digest, stable_seed
 
 CONTEXTS_VERSION = "contexts-v1"
+
+#: ShapeNet-55's 8 crop viewpoints: the corners of the cube, as unit vectors.
+CROP_VIEWPOINTS = np.array(
+    [[x, y, z] for x in (1, -1) for y in (1, -1) for z in (1, -1)], dtype=np.float64
+) / np.sqrt(3.0)
+
+
+def crop_viewpoint(fingerprint: str, object_id: str) -> int:
+    """Which of :data:`CROP_VIEWPOINTS` crops the object (the same for every method and size)."""
+    rng = np.random.default_rng(stable_seed(CONTEXTS_VERSION, "crop-view", fingerprint, object_id))
+    return int(rng.integers(len(CROP_VIEWPOINTS)))
+
+
+def crop_keep(points: np.ndarray, viewpoint: np.ndarray, fraction: float) -> np.ndarray:
+    """Indices of ``points`` left when the ``fraction`` of them nearest ``viewpoint`` is removed
+    (ShapeNet-55's partial shapes), nearest kept first; ties broken by index."""
+    distance = np.linalg.norm(np.asarray(points, dtype=np.float64) - viewpoint, axis=1)
+    order = np.argsort(distance, kind="stable")
+    return order[int(fraction * len(points)) :]
+
+
+def farthest_point_order(points: np.ndarray, k: int, start: int) -> np.ndarray:
+    """The first ``k`` indices of the farthest-point order of ``points`` from index ``start``:
+    each next point is the one farthest from those already taken (ties: the lowest index)."""
+    pts = np.asarray(points, dtype=np.float64)
+    k = min(k, len(pts))
+    order = np.empty(k, dtype=np.int64)
+    order[0] = start
+    nearest = np.sum((pts - pts[start]) ** 2, axis=1)
+    for i in range(1, k):
+        order[i] = int(np.argmax(nearest))
+        np.minimum(nearest, np.sum((pts - pts[order[i]]) ** 2, axis=1), out=nearest)
+    return order
 
 
 def context_order(fingerprint: str, object_id: str, n_visible: int) -> np.ndarray:
@@ -57,19 +100,66 @@ class ContextStore:
             _save_atomic(path, order)
         return order
 
-    def context(self, data: ObjectData, size: int, run_seed: int, normals: bool = False) -> Context:
-        """The first ``size`` points of the object's stored order; with their normals only when
-        the protocol gives methods normals."""
-        n = len(data.surface_points)
-        if size > n:
-            raise ValueError(f"context size {size} exceeds the {n} visible points")
-        idx = self.order(data)[:size]
-        return Context(
-            ref=data.ref,
-            points=data.surface_points[idx],
-            normals=data.surface_normals[idx] if normals else None,
-            seed=stable_seed("method", self.fingerprint, data.ref.id, size, run_seed),
+    def crop_order(self, data: ObjectData, fraction: float, size: int) -> np.ndarray:
+        """Indices into ``data.gt_points`` of the crop context of ``size`` points (the stored
+        farthest-point order, extended and stored again when a larger size is asked for)."""
+        n = len(data.gt_points)
+        view = CROP_VIEWPOINTS[crop_viewpoint(self.fingerprint, data.ref.id)]
+        keep = crop_keep(data.gt_points, view, fraction)
+        if size > len(keep):
+            raise ValueError(
+                f"context size {size} exceeds the {len(keep)} points left of {n} ground-truth "
+                f"points after cropping {fraction:g}"
+            )
+        path = self.root / f"crop-{fraction:g}" / (data.ref.id.replace("/", "__") + ".npy")
+        stored = _read_prefix(path, len(keep))
+        if stored is None or len(stored) < size:
+            rng = np.random.default_rng(
+                stable_seed(CONTEXTS_VERSION, "crop-start", self.fingerprint, data.ref.id)
+            )
+            start = int(rng.integers(len(keep)))
+            stored = farthest_point_order(data.gt_points[keep], size, start)
+            _save_atomic(path, stored)
+        return keep[stored[:size]]
+
+    def noise(self, data: ObjectData, source: str, sd: float) -> np.ndarray:
+        """Seeded Gaussian noise of standard deviation ``sd``, one row per point of the source
+        cloud (``surface`` or ``gt``): a point's noise does not depend on the context size."""
+        n = len(data.surface_points if source == "surface" else data.gt_points)
+        rng = np.random.default_rng(
+            stable_seed(CONTEXTS_VERSION, "noise", source, self.fingerprint, data.ref.id)
         )
+        return sd * rng.standard_normal((n, 3))
+
+    def context(
+        self,
+        data: ObjectData,
+        size: int,
+        run_seed: int,
+        normals: bool = False,
+        protocol: Protocol | None = None,
+    ) -> Context:
+        """The context of ``size`` points under ``protocol`` (default: the paper's sparse one):
+        the first ``size`` points of the object's stored order, with their normals only when the
+        protocol gives methods normals."""
+        protocol = protocol or Protocol(context_normals=normals)
+        normals = normals or protocol.context_normals
+        seed = stable_seed("method", self.fingerprint, data.ref.id, size, run_seed)
+        if protocol.context == "crop":
+            idx = self.crop_order(data, protocol.crop_fraction, size)
+            points, source = data.gt_points[idx], "gt"
+            point_normals = None
+        else:
+            n = len(data.surface_points)
+            if size > n:
+                raise ValueError(f"context size {size} exceeds the {n} visible points")
+            idx = self.order(data)[:size]
+            points, source = data.surface_points[idx], "surface"
+            point_normals = data.surface_normals[idx] if normals else None
+        if protocol.context_noise:
+            noisy = points + self.noise(data, source, protocol.context_noise)[idx]
+            points = noisy.astype(points.dtype)
+        return Context(ref=data.ref, points=points, normals=point_normals, seed=seed)
 
 
 def order_problem(order: np.ndarray, n: int) -> str | None:
@@ -98,6 +188,25 @@ def _read_order(path: Path, n: int) -> np.ndarray | None:
         if problem is None:
             return order
     warn_corrupt(path, problem, "drawing the context order again (the draw is deterministic)")
+    path.unlink(missing_ok=True)
+    return None
+
+
+def _read_prefix(path: Path, n: int) -> np.ndarray | None:
+    """A stored farthest-point order (distinct indices below ``n``), None when there is none
+    (a damaged one is reported and deleted, and drawn again: the draw is deterministic)."""
+    try:
+        order = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        return None
+    except Exception as exc:  # truncated: ValueError/EOFError from numpy's reader
+        problem = describe(exc)
+    else:
+        ok = order.ndim == 1 and np.issubdtype(order.dtype, np.integer) and len(order) > 0
+        if ok and order.min() >= 0 and order.max() < n and len(np.unique(order)) == len(order):
+            return order
+        problem = f"is not a list of distinct indices below {n}"
+    warn_corrupt(path, problem, "drawing the crop order again (the draw is deterministic)")
     path.unlink(missing_ok=True)
     return None
 

@@ -7,6 +7,15 @@ cell key, recorded as run tags and printed in the leaderboard header.
   points. The paper's protocol gives methods the context *points* only (its appendix: ground-truth
   normals are not accessible at test time), so the default is ``False`` for every method; rows run
   with normals are labelled ``+normals`` and never shown under the paper's row names.
+* ``context``: where the context points come from. ``sparse`` (the paper's, the default): the
+  first k points of a seeded order of the object's *visible* surface points, nested across
+  sizes. ``crop`` (ShapeNet-55's): the object's complete ground-truth cloud less the
+  ``crop_fraction`` of its points nearest one of 8 fixed viewpoints (the corners of a cube, the
+  one chosen per object from a seed), then k points of it by farthest-point sampling from a
+  seeded start, also nested. ``context_noise`` adds seeded Gaussian noise of that standard
+  deviation to the context points of either (0.005 and 0.025 are the field's levels); the noise of
+  a point is the same at every size and for every method. A cell with another context is
+  another cell, and another leaderboard table (its header names the protocol).
 * ``frame``: the scale shapes are measured in. Objects are always normalised to a maximum vertex
   distance of 1 (``unit-radius``), and methods always work in that frame; ``unit-diameter``
   scales completion and ground truth by 1/2 before scoring (squared distances by 1/4), the scale
@@ -59,10 +68,21 @@ def scores_agree(a: float, b: float, rtol: float = SCORE_RTOL) -> bool:
     return math.isclose(a, b, rel_tol=rtol, abs_tol=0.0)
 
 
+#: Where context points come from (see the module docstring).
+CONTEXTS = ("sparse", "crop")
+DEFAULT_CONTEXT = "sparse"
+
+
 @dataclass(frozen=True)
 class Protocol:
     context_normals: bool = False
     frame: str = DEFAULT_FRAME
+    #: ``sparse`` or ``crop`` (see the module docstring).
+    context: str = DEFAULT_CONTEXT
+    #: The share of the complete cloud a ``crop`` context removes (ShapeNet-55: 0.25, 0.5, 0.75).
+    crop_fraction: float = 0.0
+    #: Standard deviation of the Gaussian noise on context points, in the unit-radius frame.
+    context_noise: float = 0.0
 
     def __post_init__(self) -> None:
         if self.frame not in FRAMES:
@@ -70,6 +90,43 @@ class Protocol:
                 f"unknown evaluation frame {self.frame!r}",
                 f"use one of: {', '.join(FRAMES)} (--frame)",
             )
+        if self.context not in CONTEXTS:
+            raise ConfigError(
+                f"unknown context protocol {self.context!r}",
+                f"use one of: {', '.join(CONTEXTS)} (--protocol)",
+            )
+        if self.context == "crop" and not 0.0 < self.crop_fraction < 1.0:
+            raise ConfigError(
+                f"--protocol crop needs a crop fraction in (0, 1), got {self.crop_fraction}",
+                "e.g. --crop-fraction 0.5 (ShapeNet-55's levels: 0.25, 0.5, 0.75)",
+            )
+        if self.context != "crop" and self.crop_fraction:
+            raise ConfigError(
+                f"--crop-fraction {self.crop_fraction} needs --protocol crop",
+                "the sparse protocol removes nothing",
+            )
+        if not (math.isfinite(self.context_noise) and self.context_noise >= 0.0):
+            raise ConfigError(
+                f"--context-noise must be a standard deviation >= 0, got {self.context_noise}",
+                "e.g. --context-noise 0.005",
+            )
+        if self.context == "crop" and self.context_normals:
+            raise ConfigError(
+                "crop contexts are drawn from the ground-truth cloud, which has no normals",
+                "drop --context-normals, or use --protocol sparse",
+            )
+
+    @property
+    def name(self) -> str:
+        """A short name of the context protocol: ``sparse``, ``crop-0.5``, ``crop-0.5+noise-0.005``
+        (file names and row labels)."""
+        out = self.context + (f"-{self.crop_fraction:g}" if self.context == "crop" else "")
+        return out + (f"+noise-{self.context_noise:g}" if self.context_noise else "")
+
+    @property
+    def is_default_context(self) -> bool:
+        """Whether contexts are the paper's (sparse, no noise): the keys and tables of 0.1."""
+        return self.context == DEFAULT_CONTEXT and not self.context_noise
 
     @property
     def scale(self) -> float:
@@ -77,15 +134,39 @@ class Protocol:
         return FRAMES[self.frame][0]
 
     def config(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "version": PROTOCOL_VERSION,
             "context_normals": self.context_normals,
             "frame": self.frame,
         }
+        # Only where they differ from the paper's protocol, so the keys of sparse cells stay.
+        if self.context != DEFAULT_CONTEXT:
+            out["context"] = self.context
+            out["crop_fraction"] = self.crop_fraction
+        if self.context_noise:
+            out["context_noise"] = self.context_noise
+        return out
 
     def describe(self) -> str:
         seen = "points and normals" if self.context_normals else "points only"
-        return f"contexts carry {seen}; distances in the {FRAMES[self.frame][1]}"
+        text = f"contexts carry {seen}; distances in the {FRAMES[self.frame][1]}"
+        return text if self.is_default_context else f"{self.describe_context()}; {text}"
+
+    def describe_context(self) -> str:
+        """Where the context points come from, in words."""
+        return describe_context(self.context, self.crop_fraction, self.context_noise)
+
+
+def describe_context(context: str, crop_fraction: float = 0.0, noise: float = 0.0) -> str:
+    """The context protocol in words (also for a run's tags, without a Protocol)."""
+    if context == "crop":
+        what = (
+            f"contexts cropped ShapeNet-55 style: the complete cloud less the {crop_fraction:g} "
+            "of its points nearest one of 8 fixed viewpoints, farthest-point sampled"
+        )
+    else:
+        what = "contexts drawn from the visible surface points (the paper's sparse protocol)"
+    return what + (f", with Gaussian noise of sd {noise:g}" if noise else "")
 
 
 def frame_description(frame: str) -> str:

@@ -59,3 +59,18 @@ class Board:
     costs: pd.DataFrame | None = None
     #: The table's cell runs (one row per run, tags as columns), for provenance.
     runs: pd.DataFrame | None = None
+    #: The context protocol's name (``sparse``, ``crop-0.5``...): one table per protocol.
+    context: str = "sparse"
+
+
+def table_id(board: Board) -> str:
+    """The table's id in pages and file names: its split, and its context protocol unless it is
+    the paper's (``trained-crop-0_5``)."""
+    if board.context == "sparse":
+        return board.split
+    return f"{board.split}-{board.context.replace('.', '_')}"
+
+
+def table_title(board: Board) -> str:
+    """The table's split, and its context protocol unless it is the paper's."""
+    return board.split if board.context == "sparse" else f"{board.split}, {board.context}"

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from shapebench.api.errors import ShapebenchError
-from shapebench.api.protocol import DEFAULT_FRAME
+from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME
 from shapebench.boards.leaderboard import (
     build_board,
     label_runs,
@@ -75,11 +75,14 @@ def load_results(
     data_version: str | None = None,
     workspace: str | Path | None = None,
     tracking_uri: str | None = None,
+    protocol: str = DEFAULT_CONTEXT,
 ) -> pd.DataFrame:
-    """One row per (object, cell) of ``dataset`` (every split with runs, or ``split``).
+    """One row per (object, cell) of ``dataset`` (every split with runs, or ``split``), of one
+    context protocol (``protocol``: ``sparse``, the paper's, or a name like ``crop-0.5``).
 
     Columns: :data:`RESULT_COLUMNS` (``label`` is the leaderboard's row label, e.g.
-    ``gauss[sigma=0.05]``; ``variant`` its key; ``protocol`` ``points`` or ``points+normals``;
+    ``gauss[sigma=0.05]``; ``variant`` its key; ``protocol`` ``points`` or ``points+normals``,
+    after the context protocol when it is not the paper's (``crop-0.5: points``);
     ``failed`` True where the method produced nothing for the object, with ``reason``), then one
     column per metric the cell scored (``metric=`` keeps that one), in the units the metric
     computes (the tables' x1000 is a display scale). Failed objects have NaN scores: the
@@ -93,7 +96,7 @@ def load_results(
         exp_id = tracker.experiment_id(experiment_name(dataset, one), create=False)
         runs = load_runs(tracker, exp_id) if exp_id is not None else pd.DataFrame()
         if not runs.empty:
-            runs, _, _ = select_runs(runs, frame, data_version, all_variants=False)
+            runs, _, _ = select_runs(runs, frame, data_version, False, protocol)
         if not runs.empty:
             frames.append(_per_object_rows(tracker, runs, one))
     if not frames:
@@ -157,7 +160,7 @@ def _per_object_rows(tracker: Tracker, runs: pd.DataFrame, split: str) -> pd.Dat
                 "seed": int(run["seed"]),
                 "object": table["object"].astype(str),
                 "category": _text(table, "category"),
-                "protocol": "points+normals" if run.get("context_normals") else "points",
+                "protocol": _protocol_text(run),
                 "frame": run["_frame"],
                 "failed": table["status"] != "ok",
                 "reason": _text(table, "error"),
@@ -168,6 +171,14 @@ def _per_object_rows(tracker: Tracker, runs: pd.DataFrame, split: str) -> pd.Dat
             rows[name] = table[name].astype(float) if name in table else np.nan
         out.append(rows)
     return pd.concat(out, ignore_index=True)
+
+
+def _protocol_text(run: dict) -> str:
+    """``points`` or ``points+normals``, after the context protocol when it is not the paper's
+    (``crop-0.5: points``)."""
+    carried = "points+normals" if run.get("context_normals") else "points"
+    context = run.get("context_protocol")
+    return f"{context}: {carried}" if isinstance(context, str) and context else carried
 
 
 def _text(table: pd.DataFrame, column: str) -> pd.Series:
@@ -188,13 +199,16 @@ def load_leaderboard(
     data_version: str | None = None,
     workspace: str | Path | None = None,
     tracking_uri: str | None = None,
+    protocol: str = DEFAULT_CONTEXT,
 ) -> pd.DataFrame:
     """The table ``shapebench leaderboard`` writes as ``<dataset>-<split>.csv``: one row per
     (kind, row label, context size), ``kind`` ``raw`` (mean and std in the table's scale, x1000
     for Chamfer) or ``normalised`` (per object divided by ``reference``), with the significance
     columns (``best``, ``tied``, ``p_vs_best``, ``p_holm``) and the training cost."""
     tracker = _tracker(workspace, tracking_uri)
-    board = build_board(tracker, dataset, split, reference, metric, frame, data_version)
+    board = build_board(
+        tracker, dataset, split, reference, metric, frame, data_version, protocol=protocol
+    )
     if board is None:
         raise _no_runs(dataset, split, tracker.uri)
     return tidy_csv(board)

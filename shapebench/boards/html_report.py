@@ -36,8 +36,13 @@ import pandas as pd
 from shapebench import __version__
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
-from shapebench.boards.board import Board, Row
-from shapebench.boards.leaderboard import board_path, build_board, splits_with_runs
+from shapebench.boards.board import Board, Row, table_id, table_title
+from shapebench.boards.leaderboard import (
+    board_path,
+    build_board,
+    protocols_with_runs,
+    splits_with_runs,
+)
 from shapebench.config import Settings
 from shapebench.store.tracking import Tracker, experiment_name
 
@@ -312,7 +317,7 @@ def _tables(board: Board) -> str:
     ctxs = board.contexts
     head = "".join(f"<th>{c}</th>" for c in ctxs)
     raw = [
-        f'<table class="sortable" id="raw-{_e(board.split)}"><thead><tr><th>method</th>'
+        f'<table class="sortable" id="raw-{_e(table_id(board))}"><thead><tr><th>method</th>'
         f"{head}<th>objects</th><th>failed</th><th>test time / object</th>"
         '<th>training device-hours</th><th class="wrap">training</th></tr></thead>'
         "<tbody>"
@@ -334,7 +339,7 @@ def _tables(board: Board) -> str:
         )
     raw.append("</tbody></table>")
     norm = [
-        f'<table class="sortable" id="norm-{_e(board.split)}"><thead><tr><th>method</th>'
+        f'<table class="sortable" id="norm-{_e(table_id(board))}"><thead><tr><th>method</th>'
         f"{head}</tr></thead><tbody>"
     ]
     for row in board.rows:
@@ -428,9 +433,9 @@ def _section(sec: Section) -> str:
 
     b = sec.board
     raw, norm = _tables(b)
-    sid = _e(b.split)
+    sid = _e(table_id(b))
     parts = [
-        f'<h2 id="split-{sid}">{_e(b.dataset)} / {sid}: {_e(b.metric)}</h2>',
+        f'<h2 id="split-{sid}">{_e(b.dataset)} / {_e(table_title(b))}: {_e(b.metric)}</h2>',
         _winners(b),
         f"<p><b>Metric card</b>: {_e(_card_text(b.card))}. <b>Protocol</b>: {_e(b.protocol)}; "
         f"distances in the {_e(FRAMES[b.frame][1])}.</p>",
@@ -478,7 +483,7 @@ def _section(sec: Section) -> str:
 
 def render_html(sections: list[Section], dataset: str, command: str, uri: str) -> str:
     toc = " · ".join(
-        f'<a href="#split-{_e(s.board.split)}">{_e(s.board.split)}</a>' for s in sections
+        f'<a href="#split-{_e(table_id(s.board))}">{_e(table_title(s.board))}</a>' for s in sections
     )
     body = "\n".join(_section(s) for s in sections)
     return f"""<!DOCTYPE html>
@@ -516,13 +521,16 @@ def build_report(
     if splits is None:
         splits = splits_with_runs(tracker, dataset)
     sections = []
-    for split in splits:
+    tables = [
+        (split, one) for split in splits for one in protocols_with_runs(tracker, dataset, split)
+    ]
+    for split, one in tables:
         board = build_board(
-            tracker, dataset, split, reference, metric, frame, data_version, all_variants
+            tracker, dataset, split, reference, metric, frame, data_version, all_variants, one
         )
         if board is None:
             continue
-        md = board_path(out_dir, dataset, split, frame)
+        md = board_path(out_dir, dataset, split, frame, one)
         figures, files = {}, []
         for name, fig in board_figures(board).items():
             files += save(fig, md.with_name(f"{md.stem}-{name}"))

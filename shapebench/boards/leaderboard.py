@@ -28,7 +28,13 @@ import pandas as pd
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.metric import MetricCard
-from shapebench.api.protocol import DEFAULT_FRAME, FRAMES, PAPER_FRAME
+from shapebench.api.protocol import (
+    DEFAULT_CONTEXT,
+    DEFAULT_FRAME,
+    FRAMES,
+    PAPER_FRAME,
+    describe_context,
+)
 from shapebench.api.types import EVAL_SPLITS
 from shapebench.boards import stats as board_stats
 from shapebench.boards.board import Board, Row
@@ -92,11 +98,16 @@ def _column(runs: pd.DataFrame, name: str, default: str) -> pd.Series:
 
 
 def select_runs(
-    runs: pd.DataFrame, frame: str, data_version: str | None, all_variants: bool
+    runs: pd.DataFrame,
+    frame: str,
+    data_version: str | None,
+    all_variants: bool,
+    protocol: str = DEFAULT_CONTEXT,
 ) -> tuple[pd.DataFrame, str, list[str]]:
-    """The runs of one table: one frame, one data version, the newest run per (variant, context,
-    seed), and (unless ``all_variants``) the newest variant per label. Returns them, the chosen
-    fingerprint and what was left out, in words."""
+    """The runs of one table: one frame, one context protocol (its name: ``sparse``,
+    ``crop-0.5``...), one data version, the newest run per (variant, context, seed), and (unless
+    ``all_variants``) the newest variant per label. Returns them, the chosen fingerprint and what
+    was left out, in words."""
     left_out: list[str] = []
     legacy = runs["variant_key"].isna() if "variant_key" in runs else pd.Series(True, runs.index)
     if legacy.any():
@@ -110,6 +121,15 @@ def select_runs(
         frames = ", ".join(sorted(other_frame["_frame"].unique()))
         left_out.append(f"{len(other_frame)} runs in another frame ({frames}; --frame)")
     runs = runs[runs["_frame"] == frame]
+    runs["_protocol"] = _column(runs, "context_protocol", DEFAULT_CONTEXT)
+    other_protocol = runs[runs["_protocol"] != protocol]
+    if len(other_protocol):
+        names = ", ".join(sorted(other_protocol["_protocol"].unique()))
+        left_out.append(
+            f"{len(other_protocol)} runs with other contexts ({names}; --protocol, "
+            "--crop-fraction, --context-noise)"
+        )
+    runs = runs[runs["_protocol"] == protocol]
     if runs.empty:
         return runs, "", left_out
     versions = runs.groupby("fingerprint")["start"].max().sort_values(ascending=False)
@@ -166,6 +186,13 @@ def label_runs(runs: pd.DataFrame) -> pd.DataFrame:
     runs["_label"] = _column(runs, "variant_label", "")
     runs.loc[runs["_label"] == "", "_label"] = runs["method"]
     return runs
+
+
+def _context_words(name: str) -> str:
+    """A context protocol's name (``crop-0.5+noise-0.005``) in words, for table headers."""
+    base, _, noise = name.partition("+noise-")
+    kind, _, fraction = base.partition("-")
+    return describe_context(kind, float(fraction or 0), float(noise or 0))
 
 
 def _text(value: object) -> str:
@@ -230,6 +257,7 @@ def build_board(
     frame: str = DEFAULT_FRAME,
     data_version: str | None = None,
     all_variants: bool = False,
+    protocol: str = DEFAULT_CONTEXT,
 ) -> Board | None:
     exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
     if exp_id is None:
@@ -237,7 +265,7 @@ def build_board(
     runs = load_runs(tracker, exp_id)
     if runs.empty:
         return None
-    runs, fingerprint, left_out = select_runs(runs, frame, data_version, all_variants)
+    runs, fingerprint, left_out = select_runs(runs, frame, data_version, all_variants, protocol)
     if runs.empty:
         return None
     if metric is None:
@@ -297,10 +325,16 @@ def build_board(
     else:
         normalized = board_stats.normalized_table(scored, ref_row.variant)
     root = runs["data_root"].dropna().iloc[0] if "data_root" in runs else ""
-    protocol = (
+    carried = (
         "contexts carry points only"
         if not any(r.overrides.get("+normals") for r in rows)
         else "contexts carry points only, except rows marked +normals (points and normals)"
+    )
+    protocol_name = runs["_protocol"].iloc[0] if "_protocol" in runs else DEFAULT_CONTEXT
+    protocol = (
+        carried
+        if protocol_name == DEFAULT_CONTEXT
+        else f"{_context_words(protocol_name)}; {carried}"
     )
     from shapebench.boards.cost import row_costs
 
@@ -327,6 +361,7 @@ def build_board(
         scale,
         row_costs(tracker, runs, scored),
         runs,
+        context=protocol_name,
     )
 
 
@@ -640,9 +675,14 @@ def tidy_csv(board: Board) -> pd.DataFrame:
     return out[cols]
 
 
-def board_path(out_dir: Path, dataset: str, split: str, frame: str) -> Path:
-    """``<dataset>-<split>.md``, with the frame in the name unless it is the default."""
-    suffix = "" if frame == DEFAULT_FRAME else f"-{frame}"
+def board_path(
+    out_dir: Path, dataset: str, split: str, frame: str, protocol: str = DEFAULT_CONTEXT
+) -> Path:
+    """``<dataset>-<split>.md``, with the context protocol and the frame in the name unless they
+    are the defaults (``synthetic-trained-crop-0_5.md``: no dot but the suffix's, which the
+    figures' names rely on)."""
+    suffix = "" if protocol == DEFAULT_CONTEXT else "-" + protocol.replace(".", "_")
+    suffix += "" if frame == DEFAULT_FRAME else f"-{frame}"
     return out_dir / f"{dataset}-{split}{suffix}.md"
 
 
@@ -669,6 +709,17 @@ def splits_with_runs(tracker: Tracker, dataset: str) -> list[str]:
     return sorted(found, key=lambda s: (order.index(s) if s in order else len(order), s))
 
 
+def protocols_with_runs(tracker: Tracker, dataset: str, split: str) -> list[str]:
+    """The context protocols (names) of the finished cells of ``dataset``/``split``, the paper's
+    sparse one first."""
+    exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
+    runs = load_runs(tracker, exp_id) if exp_id is not None else pd.DataFrame()
+    if runs.empty:
+        return []
+    names = set(_column(runs, "context_protocol", DEFAULT_CONTEXT))
+    return sorted(names, key=lambda n: (n != DEFAULT_CONTEXT, n))
+
+
 def build_leaderboards(
     settings: Settings,
     dataset: str,
@@ -679,20 +730,30 @@ def build_leaderboards(
     frame: str = DEFAULT_FRAME,
     data_version: str | None = None,
     all_variants: bool = False,
+    protocol: str | None = DEFAULT_CONTEXT,
 ) -> list[Path]:
+    """Write the tables of ``dataset``: one per split (``splits``, or every split with runs)
+    and context protocol (``protocol``, or every protocol with runs when None)."""
     tracker = Tracker(settings)
     if splits is None:
         splits = splits_with_runs(tracker, dataset)
     command = "shapebench " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     written = []
-    for split in splits:
+    tables = [
+        (split, one)
+        for split in splits
+        for one in (
+            [protocol] if protocol is not None else protocols_with_runs(tracker, dataset, split)
+        )
+    ]
+    for split, one in tables:
         board = build_board(
-            tracker, dataset, split, reference, metric, frame, data_version, all_variants
+            tracker, dataset, split, reference, metric, frame, data_version, all_variants, one
         )
         if board is None:
             continue
         out_dir.mkdir(parents=True, exist_ok=True)
-        md = board_path(out_dir, dataset, split, frame)
+        md = board_path(out_dir, dataset, split, frame, one)
         # Figures beside the table (PNG and SVG), linked from it, and all of it in MLflow.
         from shapebench.boards.figures import log_board_artifacts, write_board_figures
 
@@ -707,8 +768,15 @@ def build_leaderboards(
         raise ShapebenchError(
             f"no finished runs of dataset {dataset!r}"
             + (f" (splits {', '.join(splits)})" if splits else "")
-            + f" in the {frame} frame in {settings.tracking_uri}",
+            + f" in the {frame} frame"
+            + (f" with {protocol} contexts" if protocol not in (None, DEFAULT_CONTEXT) else "")
+            + f" in {settings.tracking_uri}",
             f"run one first: shapebench run --method gauss --dataset {dataset}"
-            + (f" --frame {frame}" if frame != DEFAULT_FRAME else ""),
+            + (f" --frame {frame}" if frame != DEFAULT_FRAME else "")
+            + (
+                " (with the same --protocol options)"
+                if protocol not in (None, DEFAULT_CONTEXT)
+                else ""
+            ),
         )
     return written

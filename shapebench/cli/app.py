@@ -144,6 +144,37 @@ def trainer_options(f):
     return f
 
 
+def context_options(f):
+    """Where context points come from (see shapebench.api.protocol): run, leaderboard, report."""
+    f = click.option(
+        "--context-noise",
+        type=float,
+        default=0.0,
+        metavar="SD",
+        help="Gaussian noise of this standard deviation on the context points, seeded, the "
+        "same for every method (the field's levels: 0.005, 0.025).",
+    )(f)
+    f = click.option(
+        "--crop-fraction",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="With --protocol crop: the share of the complete cloud removed (ShapeNet-55: "
+        "0.25, 0.5, 0.75).",
+    )(f)
+    f = click.option(
+        "--protocol",
+        "context_protocol",
+        type=click.Choice(["sparse", "crop"]),
+        default=None,
+        help="sparse: the paper's points on the visible surface [default]; crop: ShapeNet-55's "
+        "partial shapes (the complete cloud less the part nearest a viewpoint, farthest-point "
+        "sampled; the field uses --contexts 2048). leaderboard and report: the tables of this "
+        "protocol only [default: a table per protocol with runs].",
+    )(f)
+    return f
+
+
 def protocol_options(f):
     """The evaluation protocol: part of every cell key (see shapebench.api.protocol)."""
     f = click.option(
@@ -230,10 +261,22 @@ def cli() -> None:
     """
 
 
-def _protocol(frame: str | None, context_normals: bool | None):
-    from shapebench.api.protocol import DEFAULT_FRAME, Protocol
+def _protocol(
+    frame: str | None,
+    context_normals: bool | None,
+    context: str | None = None,
+    crop_fraction: float = 0.0,
+    context_noise: float = 0.0,
+):
+    from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME, Protocol
 
-    return Protocol(context_normals=bool(context_normals), frame=frame or DEFAULT_FRAME)
+    return Protocol(
+        context_normals=bool(context_normals),
+        frame=frame or DEFAULT_FRAME,
+        context=context or DEFAULT_CONTEXT,
+        crop_fraction=crop_fraction,
+        context_noise=context_noise,
+    )
 
 
 def _exit_if_all_failed(outcomes) -> None:

@@ -17,6 +17,7 @@ from shapebench.cli.app import (
     _settings,
     _trainer,
     cli,
+    context_options,
     plugin_options,
     protocol_options,
     store_options,
@@ -88,6 +89,7 @@ from shapebench.cli.app import (
 )
 @click.option("--wait", is_flag=True, help="With --launcher slurm: wait for the jobs to end.")
 @protocol_options
+@context_options
 @plugin_options
 @trainer_options
 @store_options
@@ -109,6 +111,9 @@ def run(
     wait,
     frame,
     context_normals,
+    context_protocol,
+    crop_fraction,
+    context_noise,
     method_opts,
     dataset_opts,
     data_root,
@@ -131,6 +136,8 @@ def run(
       shapebench run -m gauss -d synthetic --contexts 50,100 -O sigma=0.02 --quiet
       shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
       shapebench run -m gauss -d synthetic --frame unit-diameter   # the paper's scale
+      shapebench run -m gauss -d synthetic --protocol crop --crop-fraction 0.5 --contexts 2048
+      shapebench run -m gauss -d synthetic --context-noise 0.005   # noisy sparse contexts
       shapebench run -m msc -d synthetic --samples 4   # posterior samples, trains first
       shapebench run -m igr -d shapenet --launcher slurm --slurm partition=gpu \\
           --slurm tracking=per-job --devices 1 --accelerator gpu
@@ -152,7 +159,7 @@ def run(
         checkpoint=checkpoint,
         force=force,
         quiet=quiet,
-        protocol=_protocol(frame, context_normals),
+        protocol=_protocol(frame, context_normals, context_protocol, crop_fraction, context_noise),
         label=label,
         retrain=retrain,
     )

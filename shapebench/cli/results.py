@@ -9,8 +9,10 @@ from pathlib import Path
 import click
 
 from shapebench.cli.app import (
+    _protocol,
     _settings,
     cli,
+    context_options,
     store_options,
 )
 
@@ -57,6 +59,7 @@ from shapebench.cli.app import (
     show_default=True,
     help="Where the .md and .csv files are written.",
 )
+@context_options
 @store_options
 def leaderboard(
     dataset,
@@ -67,6 +70,9 @@ def leaderboard(
     data_version,
     all_variants,
     out_dir,
+    context_protocol,
+    crop_fraction,
+    context_noise,
     profile,
     tracking_uri,
     cache_dir,
@@ -86,10 +92,21 @@ def leaderboard(
       shapebench leaderboard -d synthetic --split trained --reference gauss
       shapebench leaderboard -d shapenet --frame unit-diameter   # beside the paper's figures
       shapebench leaderboard -d meshes --data-version 3f2a       # an older data version
+      shapebench leaderboard -d synthetic --protocol crop --crop-fraction 0.5   # its own table
+
+    Runs with another context protocol (--protocol crop, --context-noise) are tables of their
+    own, written as <dataset>-<split>-crop-0_5.md; the header names the protocol. Without
+    --protocol, every protocol with runs gets its table.
     """
     from shapebench.boards.leaderboard import build_leaderboards
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    given = context_protocol is not None or crop_fraction or context_noise
+    protocol = (
+        _protocol(None, None, context_protocol, crop_fraction, context_noise).name
+        if given
+        else None
+    )
     for path in build_leaderboards(
         settings,
         dataset,
@@ -100,6 +117,7 @@ def leaderboard(
         frame,
         data_version,
         all_variants,
+        protocol,
     ):
         click.echo(f"wrote {path}")
 

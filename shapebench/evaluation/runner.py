@@ -219,20 +219,38 @@ def _progress(total: int, desc: str, quiet: bool):
 
 
 def check_context_sizes(
-    refs: list[ObjectRef], cache: ObjectCache, sizes: list[int], quiet: bool, label: str
+    refs: list[ObjectRef],
+    cache: ObjectCache,
+    sizes: list[int],
+    quiet: bool,
+    label: str,
+    protocol: Protocol | None = None,
 ) -> None:
-    """Load (and if needed preprocess) every object; refuse sizes some object cannot provide."""
+    """Load (and if needed preprocess) every object; refuse sizes some object cannot provide
+    (visible surface points; under ``--protocol crop`` the ground-truth points a crop leaves)."""
+    crop = protocol is not None and protocol.context == "crop"
     fewest: tuple[int, str] | None = None
     with _progress(len(refs), f"preparing {label}", quiet) as bar:
         for ref in refs:
             try:
-                n = len(cache.get(ref).surface_points)
+                data = cache.get(ref)
+                if crop:
+                    n = len(data.gt_points) - int(protocol.crop_fraction * len(data.gt_points))
+                else:
+                    n = len(data.surface_points)
                 if fewest is None or n < fewest[0]:
                     fewest = (n, ref.id)
             except ObjectLoadError:
                 pass  # counted as a failure in every cell
             bar.update()
     if fewest is not None and max(sizes) > fewest[0]:
+        if crop:
+            raise ShapebenchError(
+                f"context size {max(sizes)} is larger than the {fewest[0]} ground-truth points "
+                f"a crop of {protocol.crop_fraction:g} leaves of object {fewest[1]!r} ({label})",
+                f"use context sizes up to {fewest[0]}, or more ground-truth points "
+                "(-D gt_points=...)",
+            )
         raise ShapebenchError(
             f"context size {max(sizes)} is larger than the {fewest[0]} visible surface points of "
             f"object {fewest[1]!r} ({label})",
@@ -432,7 +450,12 @@ class Runner:
                 continue
             cached = [r for r in results if r.split == split and r.skipped]
             check_context_sizes(
-                refs, cache, [p[1] for p in pending], plan.quiet, f"{plan.dataset.name}/{split}"
+                refs,
+                cache,
+                [p[1] for p in pending],
+                plan.quiet,
+                f"{plan.dataset.name}/{split}",
+                plan.protocol,
             )
             if method is None:
                 method = make_method()
@@ -634,7 +657,7 @@ class Runner:
                         rows.append(row)
                         try:
                             data = cache.get(ref)
-                            ctx = store.context(data, size, seed, plan.protocol.context_normals)
+                            ctx = store.context(data, size, seed, protocol=plan.protocol)
                             if ref.id in pictured:
                                 ctx = dataclasses.replace(ctx, pictured=True)
                         except (ObjectLoadError, ValueError) as exc:
@@ -768,6 +791,7 @@ class Runner:
             training_run_id=str(plan.checkpoint.get("run_id") or ""),
             frame=plan.protocol.frame,
             context_normals=plan.protocol.context_normals,
+            context_protocol="" if plan.protocol.is_default_context else plan.protocol.name,
             variant_key=variant.key if variant else "",
             variant_label=variant.label if variant else "",
             variant_overrides=dict(variant.overrides) if variant else {},

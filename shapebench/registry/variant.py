@@ -70,6 +70,8 @@ def make_variant(
         "checkpoint_file": checkpoint_file,
         "context_normals": protocol.context_normals,
     }
+    if not protocol.is_default_context:  # crop or noisy contexts: a row of their own
+        identity["context"] = protocol.name
     if weights == "local":  # the row beside the reference's (see below); other rows keep their keys
         identity["weights"] = weights
     key = stable_hash(identity)
@@ -81,6 +83,10 @@ def make_variant(
         overrides["checkpoint"] = checkpoint_file.rsplit("/", 1)[-1].split(":", 1)[0]
     if protocol.context_normals:
         overrides["+normals"] = True
+    if protocol.context == "crop":
+        overrides["crop"] = protocol.crop_fraction
+    if protocol.context_noise:
+        overrides["noise"] = protocol.context_noise
     if weights == "local":
         overrides["weights"] = "local"
     return Variant(key, label or auto_label(name, overrides), overrides)

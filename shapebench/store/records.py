@@ -52,6 +52,9 @@ SEED_TAG = "seed"
 FRAME_TAG = "protocol.frame"
 VARIANT_KEY_TAG = "variant.key"
 VARIANT_LABEL_TAG = "variant.label"
+#: The context protocol of a cell other than the paper's (``crop-0.5``, ``sparse+noise-0.005``,
+#: :attr:`shapebench.api.protocol.Protocol.name`); absent on sparse cells.
+CONTEXT_PROTOCOL_TAG = "protocol.context"
 #: The digest of the context points a cell gave its method (same for every method).
 CONTEXTS_DIGEST_TAG = "contexts.sha256"
 #: A training that continued from a checkpoint.
@@ -111,6 +114,7 @@ _TAGS = {
     "checkpoint_key": CHECKPOINT_KEY_TAG,
     "training_run_id": TRAINING_RUN_TAG,
     "frame": FRAME_TAG,
+    "context_protocol": CONTEXT_PROTOCOL_TAG,
     "variant_key": VARIANT_KEY_TAG,
     "variant_label": VARIANT_LABEL_TAG,
 }
@@ -142,6 +146,8 @@ class CellRecord:
     training_run_id: str = ""
     frame: str = ""
     context_normals: bool = False
+    #: The context protocol's name; "" for the paper's sparse contexts without noise.
+    context_protocol: str = ""
     #: The leaderboard row (see :mod:`shapebench.registry.variant`); empty for runs logged before
     #: rows.
     variant_key: str = ""

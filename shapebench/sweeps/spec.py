@@ -14,7 +14,7 @@ from typing import Any
 
 from shapebench.api.errors import ConfigError, ShapebenchError
 from shapebench.api.method import TrainerOptions
-from shapebench.api.protocol import DEFAULT_FRAME, Protocol
+from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME, Protocol
 from shapebench.config import Settings, read_yaml
 from shapebench.evaluation.orchestrate import EvalOutcome, EvalRequest, evaluate
 from shapebench.registry.discovery import get_registry
@@ -110,6 +110,9 @@ def load_sweep(path: Path) -> SweepSpec:
         "metrics",
         "frame",
         "context_normals",
+        "protocol",
+        "crop_fraction",
+        "context_noise",
         "launcher",
     }
     if unknown:
@@ -120,10 +123,21 @@ def load_sweep(path: Path) -> SweepSpec:
     methods = (
         data["methods"] if data["methods"] == "all" else _entries(data["methods"], "methods", path)
     )
-    for key, kind in (("name", str), ("profile", str), ("frame", str), ("context_normals", bool)):
-        if data.get(key) is not None and not isinstance(data[key], kind):
+    scalars: tuple[tuple[str, type | tuple[type, ...]], ...] = (
+        ("name", str),
+        ("profile", str),
+        ("frame", str),
+        ("context_normals", bool),
+        ("protocol", str),
+        ("crop_fraction", (int, float)),
+        ("context_noise", (int, float)),
+    )
+    for key, kind in scalars:
+        value = data.get(key)
+        if value is not None and _wrong_type(value, kind):
+            kind_name = kind.__name__ if isinstance(kind, type) else "number"
             raise ConfigError(
-                f"{path}: '{key}' must be a {kind.__name__}, got {data[key]!r}",
+                f"{path}: '{key}' must be a {kind_name}, got {value!r}",
                 f"e.g. {key}: {_EXAMPLES[key]}",
             )
     spec = SweepSpec(
@@ -138,6 +152,9 @@ def load_sweep(path: Path) -> SweepSpec:
         protocol=Protocol(
             context_normals=bool(data.get("context_normals", False)),
             frame=data.get("frame") or DEFAULT_FRAME,
+            context=data.get("protocol") or DEFAULT_CONTEXT,
+            crop_fraction=float(data.get("crop_fraction") or 0.0),
+            context_noise=float(data.get("context_noise") or 0.0),
         ),
         launcher=_launcher_block(data.get("launcher"), path),
     )
@@ -160,11 +177,21 @@ _EXAMPLES = {
     "profile": "quick",
     "frame": "unit-diameter",
     "context_normals": "true",
+    "protocol": "crop",
+    "crop_fraction": "0.5",
+    "context_noise": "0.005",
     "splits": "[trained, novel]",
     "contexts": "[50, 100, 300, 1000]",
     "seeds": "[0, 1, 2]",
     "metrics": "[chamfer-l2, fscore]",
 }
+
+
+def _wrong_type(value: Any, kind: type | tuple[type, ...]) -> bool:
+    """Whether ``value`` is not a ``kind`` (YAML's true/false are bools, not numbers)."""
+    if kind is bool:
+        return not isinstance(value, bool)
+    return isinstance(value, bool) or not isinstance(value, kind)
 
 
 def _list_of(data: dict, key: str, kind: type, default: Any, path: Path) -> Any:

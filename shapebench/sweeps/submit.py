@@ -213,6 +213,12 @@ def run_as_sweep(req: Any, settings: Settings) -> Path:
         "frame": req.protocol.frame,
         "context_normals": req.protocol.context_normals,
     }
+    if not req.protocol.is_default_context:
+        data["protocol"] = req.protocol.context
+        if req.protocol.context == "crop":
+            data["crop_fraction"] = req.protocol.crop_fraction
+        if req.protocol.context_noise:
+            data["context_noise"] = req.protocol.context_noise
     if req.splits:
         data["splits"] = list(req.splits)
     if req.metrics:
