@@ -23,6 +23,7 @@ BUILTIN_PLUGINS = (
     "shapebench_meshes",
     "shapebench_shapenet",
     "shapebench_iclnuim",
+    "shapebench_pointclouds",
     "shapebench_gauss",
     "shapebench_igr",
     "shapebench_deepsdf",

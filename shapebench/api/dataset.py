@@ -61,6 +61,9 @@ class Dataset(ABC):
     #: Splits for choosing options, disjoint from every test split (``VALIDATION``): a run
     #: evaluates them only when it names them, so no default table ever reports them.
     validation_splits: ClassVar[tuple[str, ...]] = ()
+    #: Whether ``surface_normals`` are the surface's normals; a dataset of bare points says False
+    #: and ``--context-normals`` is refused on it.
+    has_normals: ClassVar[bool] = True
     #: Option overrides that make the dataset tiny for ``shapebench check`` and
     #: :mod:`shapebench.registry.testing` (few objects, few points).
     check_options: ClassVar[dict[str, Any]] = {}

@@ -131,6 +131,12 @@ def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
     method = resolve_method(registry, req.method, settings, req.method_opts)
     dataset = resolve_dataset(registry, req.dataset, settings, req.data_root, req.dataset_opts)
     splits = _check_splits(dataset, req.splits)
+    if req.protocol.context_normals and not dataset.has_normals:
+        raise ShapebenchError(
+            f"dataset {dataset.name!r} has points without normals: --context-normals cannot be "
+            "given",
+            "drop --context-normals",
+        )
     contexts = validate_contexts(req.contexts)
     # Crop contexts come from the ground-truth points: checked per object before any cell.
     bound = dataset.max_context_size() if req.protocol.context != "crop" else None
