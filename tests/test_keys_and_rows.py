@@ -464,6 +464,27 @@ def test_the_failure_rule_on_a_known_table():
     assert board_stats.holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
 
 
+def test_the_category_mean_weighs_every_category_the_same():
+    from shapebench.boards import stats as board_stats
+
+    # Three chairs (1, 2, 3) and one lamp (10): the instance mean is 16/4 = 4, the category mean
+    # (PCN's "overall") (2 + 10)/2 = 6. A failed chair scores the worst value of its cell, 10.
+    rows = [
+        ("chair/0", "chair", "ok", 1.0),
+        ("chair/1", "chair", "ok", 2.0),
+        ("chair/2", "chair", "ok", 3.0),
+        ("lamp/0", "lamp", "ok", 10.0),
+    ]
+    df = pd.DataFrame(rows, columns=["object", "category", "status", "value"])
+    df = df.assign(variant="a", label="a", context=50, seed=0)
+    raw = board_stats.raw_table(board_stats.with_failure_rule(df)).iloc[0]
+    assert raw["mean"] == pytest.approx(4.0) and raw["category_mean"] == pytest.approx(6.0)
+    assert raw["categories"] == 2
+    df.loc[0, ["status", "value"]] = ["failed", np.nan]
+    raw = board_stats.raw_table(board_stats.with_failure_rule(df)).iloc[0]
+    assert raw["category_mean"] == pytest.approx(((10 + 2 + 3) / 3 + 10) / 2)
+
+
 # ----------------------------------------------------------------------------- paper's column
 
 

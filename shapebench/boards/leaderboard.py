@@ -86,7 +86,22 @@ def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFra
         table["object"] = table["object"].astype(str)
         if "seconds" not in table:  # cost per object, for the cost columns
             table["seconds"] = np.nan
-        cols = ["variant", "label", "context", "seed", "object", "status", "value", "seconds"]
+        # The category, for the category mean: the per-object table's (older tables: the
+        # object id's first part, the layout of every built-in dataset).
+        if "category" not in table:
+            table["category"] = table["object"].str.split("/").str[0]
+        table["category"] = table["category"].astype(str)
+        cols = [
+            "variant",
+            "label",
+            "context",
+            "seed",
+            "object",
+            "category",
+            "status",
+            "value",
+            "seconds",
+        ]
         frames.append(table[cols])
     return pd.concat(frames, ignore_index=True)
 
@@ -311,8 +326,9 @@ def build_board(
     scored = board_stats.with_failure_rule(per_obj, higher)
     raw = board_stats.raw_table(scored)
     scale = _scale(card)
-    for col in ("mean", "std", "mean_ok", "std_ok"):
-        raw[col] = raw[col] * scale
+    for col in ("mean", "std", "mean_ok", "std_ok", "category_mean"):
+        if col in raw:
+            raw[col] = raw[col] * scale
     rows = _rows(runs)
     ref_row = next((r for r in rows if r.label == reference), None)
     normalized, note = None, ""
@@ -484,7 +500,8 @@ def render_markdown(
         f"**Protocol**: {board.protocol}; distances in the {FRAMES[board.frame][1]}.",
         "",
         f"Raw: mean ± std over {samples} of {board.metric}{' ' + scale_txt if scale_txt else ''}"
-        ". Normalised: per object "
+        " (every object weighs the same; the mean of the per-category means, PCN's 'overall', "
+        "is the CSV's `category_mean`). Normalised: per object "
         f"divided by `{board.reference}` on the same object{same_seed} and context size, then "
         "mean ± std (the paper's eq. 8).",
         "",
@@ -659,6 +676,8 @@ def tidy_csv(board: Board) -> pd.DataFrame:
         "n",
         "n_ok",
         "failures",
+        "category_mean",
+        "categories",
         "best",
         "tied",
         "p_vs_best",

@@ -50,8 +50,11 @@ def _mean_std(v: np.ndarray) -> tuple[float, float]:
 
 
 def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
-    """Per (variant, context): n, n_ok, failures, mean/std under the failure rule, and the
-    success-only mean_ok/std_ok."""
+    """Per (variant, context): n, n_ok, failures, mean/std under the failure rule (the instance
+    mean: every object weighs the same), the success-only mean_ok/std_ok, and, where ``scored``
+    has a ``category`` column, ``category_mean``: the mean of the per-category means under the
+    failure rule (every category weighs the same: PCN's and PoinTr's "overall") over
+    ``categories`` categories."""
     rows = []
     for (variant, ctx), g in scored.groupby(["variant", "context"], sort=True):
         ok = g[g["status"] == "ok"]["value"].to_numpy(dtype=float)
@@ -60,6 +63,12 @@ def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
         row.update(
             mean_ok=mean_ok, std_ok=std_ok, n=len(g), n_ok=len(ok), failures=len(g) - len(ok)
         )
+        if "category" in g:
+            per_category = g.dropna(subset=["scored"]).groupby("category")["scored"].mean()
+            row.update(
+                category_mean=float(per_category.mean()) if len(per_category) else np.nan,
+                categories=len(per_category),
+            )
         rows.append(row)
     return pd.DataFrame(rows)
 
