@@ -172,3 +172,79 @@ def test_shapenet55_under_the_crop_protocol_from_the_command_line(shapebench, po
     assert res.returncode == 2 and "has points without normals" in res.stderr
     res = shapebench("run", "-m", "gauss", "-d", "shapenet55", "--contexts", "50")
     assert res.returncode == 2 and "PoinTr's ShapeNet-55/34 layout" in res.stderr
+
+
+# -- PCN ------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def pcn_root(tmp_path):
+    """PCN's layout: two categories, 2 train (8 scans each), 1 val and 2 test models (scan 00),
+    complete clouds of 2,048 points (16,384 in PCN), scans cut from them as back-projections
+    would (the part facing one viewpoint), written as binary PCD and one as ASCII."""
+    from shapebench.api.contexts import CROP_VIEWPOINTS, crop_keep
+
+    root = tmp_path / "PCN"
+    catalog = []
+    for k, (synset, name, shape) in enumerate(
+        [
+            ("02691156", "airplane", trimesh.creation.box),
+            ("03001627", "chair", trimesh.creation.icosphere),
+        ]
+    ):
+        entry = {"taxonomy_id": synset, "taxonomy_name": name, "train": [], "val": [], "test": []}
+        for i, folder in enumerate(["train", "train", "val", "test", "test"]):
+            model = f"m{k}{i}"
+            entry[folder].append(model)
+            points, _ = trimesh.sample.sample_surface(shape(), 2048, seed=10 * k + i)
+            points = points - points.mean(axis=0)
+            points = points / np.linalg.norm(points, axis=1).max() * 0.9
+            complete = root / folder / "complete" / synset / f"{model}.pcd"
+            complete.parent.mkdir(parents=True, exist_ok=True)
+            write_pcd(complete, points)
+            for view in range(8 if folder == "train" else 1):
+                keep = crop_keep(points, -CROP_VIEWPOINTS[view], 0.6)
+                scan = root / folder / "partial" / synset / model / f"{view:02d}.pcd"
+                scan.parent.mkdir(parents=True, exist_ok=True)
+                write_pcd(scan, points[keep], binary=(i, view) != (3, 0))
+        catalog.append(entry)
+    (root / "PCN.json").write_text(__import__("json").dumps(catalog))
+    return root
+
+
+def test_pcn_splits_scans_and_ground_truth(pcn_root, tmp_path) -> None:
+    from shapebench_pointclouds.pcn import PCNDataset, PCNOptions
+
+    ds = PCNDataset(PCNOptions(), tmp_path / "cache", pcn_root)
+    assert [(c.name, c.split) for c in ds.categories()] == [
+        ("airplane", TRAINED),
+        ("chair", TRAINED),
+    ]
+    assert [r.id for r in ds.objects(TRAINED)] == [
+        "airplane/m03",
+        "airplane/m04",
+        "chair/m13",
+        "chair/m14",
+    ]
+    assert [r.id for r in ds.objects(VALIDATION)] == ["airplane/m02", "chair/m12"]
+    assert len(ds.objects(TRAIN)) == 4
+    data = ds.load(ds.objects(TRAINED)[0])  # the ASCII scan
+    assert data.gt_points.shape == (2048, 3) and len(data.surface_points) == 2048 - int(0.6 * 2048)
+    assert ds.scan_path(ds.objects(TRAINED)[0]).name == "00.pcd"
+    # A training model's scan is picked by the seed among its 8, and fixed by view=.
+    views = {ds.scan_path(r).name for r in ds.objects(TRAIN)}
+    assert views <= {f"{v:02d}.pcd" for v in range(8)}
+    fixed = PCNDataset(PCNOptions(view=5), tmp_path / "cache", pcn_root)
+    assert {fixed.scan_path(r).name for r in fixed.objects(TRAIN)} == {"05.pcd"}
+
+
+@pytest.mark.slow  # runs the CLI
+def test_pcn_from_the_command_line(shapebench, pcn_root) -> None:
+    base = ("run", "-m", "gauss", "-d", "pcn", "--data-root", str(pcn_root), "-q")
+    res = shapebench(*base, "--contexts", "256")
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "pcn/trained: 4 objects in 2 categories" in res.stdout
+    res = shapebench(*base, "--contexts", "2048")
+    assert res.returncode == 2 and "larger than the 820 visible surface points" in res.stderr
+    res = shapebench(*base, "--split", "validation", "--contexts", "256")
+    assert res.returncode == 0 and "pcn/validation: 2 objects" in res.stdout

@@ -1,4 +1,5 @@
-"""Registers the ``shapenet55`` dataset (entry point ``pointclouds`` of shapebench)."""
+"""Registers the ``shapenet55`` and ``pcn`` datasets (entry point ``pointclouds`` of
+shapebench)."""
 
 from shapebench import hookimpl
 
@@ -6,3 +7,4 @@ from shapebench import hookimpl
 @hookimpl
 def shapebench_register_datasets(register):
     register("shapenet55", "shapebench_pointclouds.shapenet55:ShapeNet55Dataset")
+    register("pcn", "shapebench_pointclouds.pcn:PCNDataset")
