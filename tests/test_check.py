@@ -242,7 +242,7 @@ def test_every_builtin_passes(shapebench):
         ln.split(" (")[0] for ln in res.stdout.splitlines() if ln.endswith("(shapebench 0.1.0)")
     ]
     assert titles[0] == "method deepsdf" and titles[-1] == "metric fscore"
-    assert len(titles) == 21  # 7 methods, 6 datasets, 8 metrics
+    assert len(titles) == 23  # 7 methods, 7 datasets, 9 metrics
     assert _status(res.stdout, "metric emd")["identical"].startswith("PASS")
     assert _status(res.stdout, "metric dcd")["identical"].startswith("PASS")
     pcn = _status(res.stdout, "method pcn")

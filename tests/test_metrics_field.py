@@ -158,3 +158,21 @@ def test_the_field_metrics_are_computed_on_request_only() -> None:
     assert default == {"chamfer-l2", "chamfer-l1", "chamfer-l2-asym", "chamfer-l1-asym", "fscore"}
     asked = [m.name for m in resolve_metrics(registry, ["emd", "chamfer-l2"])]
     assert asked == ["emd", "chamfer-l2"]
+
+
+# -- fidelity -------------------------------------------------------------------------------------
+
+
+def test_fidelity_by_hand_reads_the_context_not_the_ground_truth() -> None:
+    from shapebench.api.types import Context, ObjectRef
+    from shapebench.metrics.fidelity import Fidelity
+
+    # Context {0, (0, 0, 2)}, completion {0, (0, 0, 1)}: distances 0 and 1, mean 0.5, whatever
+    # the ground truth (here empty: a real scan has none).
+    ref = ObjectRef("scan/0", "scan")
+    context = Context(ref=ref, points=np.array([[0, 0, 0], [0, 0, 2.0]]), normals=None, seed=0)
+    completion = Completion(points=np.array([[0, 0, 0], [0, 0, 1.0]], dtype=np.float32))
+    truthless = make_object(np.zeros((0, 3)))
+    assert Fidelity().compute(completion, truthless, context) == pytest.approx(0.5)
+    assert Fidelity.needs_ground_truth is False
+    assert Fidelity().card(0).direction == "context->pred"

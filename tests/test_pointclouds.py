@@ -248,3 +248,33 @@ def test_pcn_from_the_command_line(shapebench, pcn_root) -> None:
     assert res.returncode == 2 and "larger than the 820 visible surface points" in res.stderr
     res = shapebench(*base, "--split", "validation", "--contexts", "256")
     assert res.returncode == 0 and "pcn/validation: 2 objects" in res.stdout
+
+
+# -- partial scans without ground truth -----------------------------------------------------------
+
+
+@pytest.mark.slow  # runs the CLI
+def test_partial_scans_are_completed_pictured_and_scored_by_fidelity_only(shapebench, tmp_path):
+    root = tmp_path / "scans"
+    (root / "cars").mkdir(parents=True)
+    box = trimesh.sample.sample_surface(trimesh.creation.box(), 3000, seed=1)[0] * 2 + 5
+    write_pcd(root / "cars" / "a.pcd", box)
+    np.save(root / "cars" / "b.npy", box)
+    np.savetxt(root / "c.xyz", np.c_[box, np.ones(len(box))])  # a fourth column, ignored
+    trimesh.PointCloud(box).export(root / "cars" / "d.ply")
+    (root / "cars" / "broken.pcd").write_text("garbage")
+    base = ("run", "-m", "gauss", "-d", "partials", "--data-root", str(root), "--contexts", "50")
+    res = shapebench(*base, "-q")
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "gauss on partials/novel: fidelity x1000" in res.stdout
+    assert "scans/cars/broken.pcd is not a PCD file" in res.stdout
+    runs = shapebench.cell_runs("partials-novel")
+    assert len(runs) == 1 and runs[0].data.metrics["failures"] == 1.0
+    assert {k for k in runs[0].data.tags if k.startswith("card.")} == {"card.fidelity"}
+    artifacts = {a.path for a in shapebench.client().list_artifacts(runs[0].info.run_id)}
+    assert "pictures" in artifacts  # completions pictured, without a ground-truth panel
+    res = shapebench(*base, "--metric", "chamfer-l2")
+    assert res.returncode == 2
+    assert "metric chamfer-l2 does not apply to dataset 'partials': it has no ground" in res.stderr
+    res = shapebench(*base, "--protocol", "crop", "--crop-fraction", "0.5")
+    assert res.returncode == 2 and "has none" in res.stderr

@@ -1,5 +1,5 @@
-"""Registers the ``shapenet55`` and ``pcn`` datasets (entry point ``pointclouds`` of
-shapebench)."""
+"""Registers the ``shapenet55``, ``pcn`` and ``partials`` datasets (entry point
+``pointclouds`` of shapebench)."""
 
 from shapebench import hookimpl
 
@@ -8,3 +8,4 @@ from shapebench import hookimpl
 def shapebench_register_datasets(register):
     register("shapenet55", "shapebench_pointclouds.shapenet55:ShapeNet55Dataset")
     register("pcn", "shapebench_pointclouds.pcn:PCNDataset")
+    register("partials", "shapebench_pointclouds.partials:PartialsDataset")

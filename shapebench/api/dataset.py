@@ -64,6 +64,11 @@ class Dataset(ABC):
     #: Whether ``surface_normals`` are the surface's normals; a dataset of bare points says False
     #: and ``--context-normals`` is refused on it.
     has_normals: ClassVar[bool] = True
+    #: Whether objects have a ground truth. Without one (real partial scans), ``gt_points`` is
+    #: empty, only metrics that compare the completion with its input apply
+    #: (:attr:`~shapebench.api.metric.Metric.needs_ground_truth` False) and the others are
+    #: refused by name; methods complete :meth:`points_to_complete` points.
+    has_ground_truth: ClassVar[bool] = True
     #: Option overrides that make the dataset tiny for ``shapebench check`` and
     #: :mod:`shapebench.registry.testing` (few objects, few points).
     check_options: ClassVar[dict[str, Any]] = {}
@@ -149,6 +154,11 @@ class Dataset(ABC):
     def cache_path(self, ref: ObjectRef) -> Path:
         """The cached arrays of one object (written atomically by :func:`save_npz_atomic`)."""
         return self.cache_root / "objects" / (ref.id.replace("/", "__") + ".npz")
+
+    def points_to_complete(self, data: ObjectData) -> int:
+        """How many points a method is asked for when completing ``data``: as many as the
+        ground truth has (a dataset without ground truth overrides it)."""
+        return len(data.gt_points)
 
     def max_context_size(self) -> int | None:
         """An upper bound on any object's visible points, known without loading (or None)."""

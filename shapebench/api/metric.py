@@ -51,6 +51,8 @@ DIRECTIONS: dict[str, str] = {
     "none": "not a comparison of two point sets",
     "matched": "both sets at once, each point paired with one point of the other set by a "
     "one-to-one matching (earth mover's distance)",
+    "context->pred": "from each context point (the method's input) to the prediction only "
+    "(fidelity: no ground truth needed)",
 }
 
 #: ``combine``: how a symmetric metric joins its two directions.
@@ -301,6 +303,10 @@ class Metric(ABC):
     #: metrics a run computes are part of its cell keys, so a new default metric would make
     #: every stored cell a different cell.
     by_default: ClassVar[bool] = True
+    #: Whether the metric compares with the ground truth. Metrics that compare the completion
+    #: with its input only (fidelity) say False: they are the ones that apply to datasets
+    #: without ground truth, where they are computed by default.
+    needs_ground_truth: ClassVar[bool] = True
 
     @abstractmethod
     def card(self, eval_points: int) -> MetricCard:

@@ -131,6 +131,11 @@ def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
     method = resolve_method(registry, req.method, settings, req.method_opts)
     dataset = resolve_dataset(registry, req.dataset, settings, req.data_root, req.dataset_opts)
     splits = _check_splits(dataset, req.splits)
+    if req.protocol.context == "crop" and not dataset.has_ground_truth:
+        raise ShapebenchError(
+            f"crop contexts are cut from the ground truth, and dataset {dataset.name!r} has none",
+            "use --protocol sparse: its contexts are drawn from the scans themselves",
+        )
     if req.protocol.context_normals and not dataset.has_normals:
         raise ShapebenchError(
             f"dataset {dataset.name!r} has points without normals: --context-normals cannot be "
@@ -146,7 +151,7 @@ def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
             f"{dataset.name!r} samples per object",
             "use smaller context sizes, or sample more surface points (-D surface_candidates=...)",
         )
-    metrics = resolve_metrics(registry, req.metrics)
+    metrics = resolve_metrics(registry, req.metrics, dataset)
     primary = (
         dataset.default_metric
         if any(m.name == dataset.default_metric for m in metrics)

@@ -669,7 +669,7 @@ class Runner:
                         ready.append((row, data, ctx))
                     if not ready:
                         continue
-                    n_points = len(ready[0][1].gt_points)
+                    n_points = plan.dataset.points_to_complete(ready[0][1])
                     outputs, seconds = complete_chunk(method, [r[2] for r in ready], n_points)
                     for (row, data, ctx), output in zip(ready, outputs, strict=True):
                         result, completion = score(
@@ -678,7 +678,8 @@ class Runner:
                         row.update(result, seconds=seconds)
                         if completion is not None and ctx.ref.id in pictured:
                             examples.append((ctx, completion))
-                            truths[ctx.ref.id] = data.gt_points
+                            if len(data.gt_points):  # none for real scans: no GT panel
+                                truths[ctx.ref.id] = data.gt_points
                         elif completion is not None and len(spare) < EXAMPLE_PLYS:
                             spare.append((ctx, completion))  # .ply only, if pictured ones fail
                         bar.update()

@@ -17,3 +17,4 @@ def shapebench_register_metrics(register):
     # On request only (Metric.by_default): the field's other conventions, and the costly EMD.
     register("emd", "shapebench.metrics.emd:EMD")
     register("dcd", "shapebench.metrics.dcd:DCD")
+    register("fidelity", "shapebench.metrics.fidelity:Fidelity")

@@ -1105,11 +1105,17 @@ def _score(metric: Any, data: Any, points: Any) -> float:
 
 
 def _identical(metric: Any, env: CheckEnv) -> tuple[str, float]:
+    import numpy as np
+
     data = _metric_object(env)
-    value = _score(metric, data, data.gt_points.copy())
+    prediction, what = data.gt_points.copy(), "identical to the ground truth"
+    if not getattr(metric, "needs_ground_truth", True):  # input-referenced (fidelity)
+        prediction = np.concatenate([prediction, data.surface_points[:CONTEXT_SIZE]])
+        what = "holding its context points (the metric reads the input, not the ground truth)"
+    value = _score(metric, data, prediction)
     if not metric.higher_is_better and abs(value) > 1e-9:
-        raise CheckFailed(f"{value:.3g} on a prediction identical to the ground truth: expected 0")
-    return f"{value:g} on a prediction identical to the ground truth", (value, data)
+        raise CheckFailed(f"{value:.3g} on a prediction {what}: expected 0")
+    return f"{value:g} on a prediction {what}", (value, data)
 
 
 def _different(metric: Any, env: CheckEnv, best: tuple[float, Any] | None) -> str:

@@ -147,13 +147,39 @@ def resolve_dataset(
     return dataset
 
 
-def resolve_metrics(registry: Registry, names: list[str] | None) -> list[Metric]:
+def resolve_metrics(
+    registry: Registry, names: list[str] | None, dataset: Dataset | None = None
+) -> list[Metric]:
     """The metrics ``names`` (``--metric``), or every installed metric computed by default
-    (:attr:`Metric.by_default`) when none is named."""
+    (:attr:`Metric.by_default`) when none is named. On a dataset without ground truth only
+    metrics that need none apply: named ones that need it are refused, and the default is
+    every metric that needs none."""
+    ground_truth = dataset is None or dataset.has_ground_truth
     if names:
-        return [registry.load("metric", n)() for n in names]
+        classes = [registry.load("metric", n) for n in names]
+        if not ground_truth:
+            refused = [n for n, c in zip(names, classes, strict=True) if _needs_truth(c)]
+            if refused:
+                usable = [
+                    n
+                    for n in registry.names("metric")
+                    if not _needs_truth(registry.load("metric", n))
+                ]
+                raise ConfigError(
+                    f"metric {', '.join(refused)} does not apply to dataset {dataset.name!r}: "
+                    "it has no ground truth",
+                    f"metrics that compare with the input apply: {', '.join(usable) or 'none'}",
+                )
+        return [cls() for cls in classes]
     classes = [registry.load("metric", n) for n in registry.names("metric")]
-    metrics = [cls() for cls in classes if getattr(cls, "by_default", True)]
+    if ground_truth:
+        metrics = [cls() for cls in classes if getattr(cls, "by_default", True)]
+    else:
+        metrics = [cls() for cls in classes if not _needs_truth(cls)]
     if not metrics:
         raise ConfigError("no metric is installed", "reinstall shapebench: it provides chamfer-l2")
     return metrics
+
+
+def _needs_truth(cls: type) -> bool:
+    return bool(getattr(cls, "needs_ground_truth", True))
