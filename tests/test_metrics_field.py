@@ -176,3 +176,15 @@ def test_fidelity_by_hand_reads_the_context_not_the_ground_truth() -> None:
     assert Fidelity().compute(completion, truthless, context) == pytest.approx(0.5)
     assert Fidelity.needs_ground_truth is False
     assert Fidelity().card(0).direction == "context->pred"
+
+
+def test_presets_expand_to_the_conventions_of_a_community() -> None:
+    registry = get_registry()
+    assert [m.name for m in resolve_metrics(registry, ["pcn"])] == [
+        "chamfer-l1-pointr",
+        "chamfer-l2",
+        "fscore",
+    ]
+    # Each metric once, in order; a preset beside a metric it holds adds it once.
+    names = [m.name for m in resolve_metrics(registry, ["chamfer-l2", "mvp", "emd"])]
+    assert names == ["chamfer-l2", "dcd", "fscore", "emd"]

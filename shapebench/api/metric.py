@@ -330,6 +330,31 @@ class Metric(ABC):
         """
 
 
+#: Named sets of metrics: the conventions a community reports in (``--metric pcn``). A name
+#: that is also an installed metric's means the metric. docs/metrics.md has the conventions.
+PRESETS: dict[str, tuple[str, ...]] = {
+    # PCN / PoinTr / AdaPoinTr tables: CD-L1 (halved), CD-L2 (squared, summed), F-Score@0.01.
+    "pcn": ("chamfer-l1-pointr", "chamfer-l2", "fscore"),
+    # ConvONet / POCO: Chamfer-L1 = 1/2 (accuracy + completeness), F-Score at 1 %.
+    "convonet": ("chamfer-l1-pointr", "fscore"),
+    # The MVP benchmark and DCD papers: CD-L2, DCD, F-Score.
+    "mvp": ("chamfer-l2", "dcd", "fscore"),
+    # The MSC paper's tables (with --frame unit-diameter).
+    "paper": ("chamfer-l2",),
+}
+
+
+def expand_presets(names: list[str], installed: list[str]) -> list[str]:
+    """``names`` with every preset replaced by its metrics (installed names win over presets),
+    each metric once, in order."""
+    out: list[str] = []
+    for name in names:
+        for metric in (name,) if name in installed else PRESETS.get(name, (name,)):
+            if metric not in out:
+                out.append(metric)
+    return out
+
+
 #: The ``eval_points`` the registry passes to ``card()`` when it checks a metric plugin.
 CHECK_EVAL_POINTS = 30_000
 

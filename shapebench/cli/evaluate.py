@@ -42,7 +42,8 @@ from shapebench.cli.app import (
     "--metric",
     "metrics",
     multiple=True,
-    help="Metrics to compute [default: every installed metric].",
+    help="Metric to compute, or a preset of the field's conventions (pcn, convonet, mvp, "
+    "paper); repeatable [default: every metric computed by default].",
 )
 @click.option(
     "--checkpoint",

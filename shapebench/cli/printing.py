@@ -172,6 +172,7 @@ def describe_kind(kind: str, profile: str | None = None) -> None:
                 click.echo(f"    {opt.name} ({opt.type}, {shown}): {opt.help}")
         click.echo("")
     if kind == "metric":
+        echo_presets(click.echo)
         echo_frames(click.echo)
 
 
@@ -192,6 +193,16 @@ def frame_factor(card: Any) -> str:
     # Not a distance, but it may still depend on the scale (DCD's exp(-alpha d^2)): no factor
     # can be promised from the card.
     return "no fixed factor (not a distance; it may still depend on scale): compare one frame"
+
+
+def echo_presets(echo: Callable[[str], None]) -> None:
+    """The named sets of metrics ``--metric`` takes (shapebench.api.metric.PRESETS)."""
+    from shapebench.api.metric import PRESETS
+
+    echo("Presets (--metric NAME computes the set):")
+    for name, metrics in PRESETS.items():
+        echo(f"  {name}: {', '.join(metrics)}")
+    echo("")
 
 
 def echo_frames(echo: Callable[[str], None]) -> None:

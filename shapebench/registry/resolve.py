@@ -12,7 +12,7 @@ from shapebench.api import options as opts
 from shapebench.api.dataset import Dataset
 from shapebench.api.errors import ConfigError, DataNotFoundError
 from shapebench.api.method import Method
-from shapebench.api.metric import Metric
+from shapebench.api.metric import Metric, expand_presets
 from shapebench.config import Settings, plugin_overrides
 from shapebench.registry.discovery import Registration, Registry
 
@@ -156,6 +156,7 @@ def resolve_metrics(
     every metric that needs none."""
     ground_truth = dataset is None or dataset.has_ground_truth
     if names:
+        names = expand_presets(list(names), registry.names("metric"))
         classes = [registry.load("metric", n) for n in names]
         if not ground_truth:
             refused = [n for n, c in zip(names, classes, strict=True) if _needs_truth(c)]
