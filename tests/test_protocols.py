@@ -159,6 +159,7 @@ def test_crop_and_noise_runs_are_rows_and_tables_of_their_own(shapebench, tmp_pa
     crop = (out / "synthetic-trained-crop-0_5.md").read_text()
     assert "**Protocol**: contexts cropped ShapeNet-55 style" in crop
     assert "`gauss[crop=0.5]`" in crop and "raw 512" in crop
+    assert "No runs of the reference" not in crop  # gauss[crop=0.5] is the table's gauss
     sparse = (out / "synthetic-trained.md").read_text()
     assert "**Protocol**: contexts carry points only" in sparse
     assert "crop=0.5" not in sparse.split("Left out")[-1].split("| Method")[-1]

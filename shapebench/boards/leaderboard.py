@@ -203,6 +203,10 @@ def label_runs(runs: pd.DataFrame) -> pd.DataFrame:
     return runs
 
 
+#: The row-label overrides a context protocol adds (registry/variant.py).
+_PROTOCOL_OVERRIDES = {"crop", "noise"}
+
+
 def _context_words(name: str) -> str:
     """A context protocol's name (``crop-0.5+noise-0.005``) in words, for table headers."""
     base, _, noise = name.partition("+noise-")
@@ -331,6 +335,14 @@ def build_board(
             raw[col] = raw[col] * scale
     rows = _rows(runs)
     ref_row = next((r for r in rows if r.label == reference), None)
+    protocol_name = runs["_protocol"].iloc[0] if "_protocol" in runs else DEFAULT_CONTEXT
+    if ref_row is None and protocol_name != DEFAULT_CONTEXT:
+        # In a table of one context protocol every row carries it ([crop=0.5]): the reference
+        # is the row whose only differences from its method's defaults are the protocol's.
+        ref_row = next(
+            (r for r in rows if r.method == reference and set(r.overrides) <= _PROTOCOL_OVERRIDES),
+            None,
+        )
     normalized, note = None, ""
     if ref_row is None:
         note = (
@@ -346,7 +358,6 @@ def build_board(
         if not any(r.overrides.get("+normals") for r in rows)
         else "contexts carry points only, except rows marked +normals (points and normals)"
     )
-    protocol_name = runs["_protocol"].iloc[0] if "_protocol" in runs else DEFAULT_CONTEXT
     protocol = (
         carried
         if protocol_name == DEFAULT_CONTEXT
