@@ -295,3 +295,34 @@ def test_a_parent_left_running_after_the_last_cell_is_closed_by_the_next_run(sha
     assert "cached" in res.stdout
     status = client.get_run(parents[0].info.run_id).info.status
     assert status == "KILLED"
+
+
+def test_store_failures_are_recognised_in_the_chain_and_nothing_else_is() -> None:
+    import errno
+
+    import requests
+
+    from shapebench.store.failures import store_failure
+
+    def chained(first: BaseException, then: BaseException) -> BaseException:
+        try:
+            try:
+                raise first
+            except BaseException:
+                raise then  # noqa: B904 -- the implicit context is what is tested
+        except BaseException as exc:
+            return exc
+
+    full = OSError(errno.ENOSPC, "No space left on device", "/ws/artifacts/a.npz")
+    failure = store_failure(chained(full, RuntimeError("cleanup failed too")))
+    assert failure is not None and failure.message == (
+        "no space left on the device writing /ws/artifacts/a.npz"
+    )
+    sqlite = RuntimeError("(sqlite3.OperationalError) database or disk is full")
+    assert "MLflow database sqlite:///x" in store_failure(sqlite, "sqlite:///x").message
+    gone = requests.exceptions.ConnectionError("Max retries exceeded: Connection refused")
+    served = store_failure(gone, "http://127.0.0.1:5000")
+    assert served is not None and "server at http://127.0.0.1:5000 stopped" in served.message
+    # A method's own download failing is not the store's failure; nor is any other error.
+    assert store_failure(gone, "sqlite:///x") is None
+    assert store_failure(ValueError("bad shape")) is None

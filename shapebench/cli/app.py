@@ -43,7 +43,8 @@ class Group(click.Group):
             )
             sys.exit(130)
         except Exception as exc:
-            # A full disk or a tracking server gone away, where no room said so already.
+            # A full disk, where no room said so already (a server gone away is recognised where
+            # its URI is known: the runner, Tracker.end_after).
             from shapebench.store.failures import store_failure
 
             failure = store_failure(exc)

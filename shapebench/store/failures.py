@@ -52,7 +52,7 @@ def _chain(exc: BaseException) -> Iterator[BaseException]:
 def store_failure(exc: BaseException, uri: str | None = None) -> StoreFailure | None:
     """One clear error for a full disk or a tracking server that stopped answering anywhere in
     ``exc``'s chain, or None when ``exc`` is something else. ``uri``: the tracking URI, named in
-    the message."""
+    the message; a server's silence is recognised only for an http(s) URI."""
     if isinstance(exc, StoreFailure):
         return exc
     for e in _chain(exc):
@@ -68,6 +68,10 @@ def store_failure(exc: BaseException, uri: str | None = None) -> StoreFailure | 
                 "no space left for the MLflow database" + (f" {uri}" if uri else ""),
                 f"free some space (or move --workspace to a larger disk), {_RESUME}",
             )
+        # Only a store behind a server can stop answering: a method's own download failing
+        # the same way is the method's error, not the store's.
+        if not (uri or "").startswith(("http://", "https://")):
+            continue
         module = type(e).__module__.split(".")[0]
         if (module in ("requests", "urllib3") and "Connection" in type(e).__name__) or any(
             marker in text for marker in _NO_ANSWER
