@@ -31,6 +31,18 @@ def max_train_option() -> Any:
     )
 
 
+def max_test_option() -> Any:
+    """The ``max_test_per_category`` field of a dataset read from a user's copy: a cap on the
+    test objects of each category, picked by the seed (it chooses objects: ``selection``)."""
+    return field(
+        default=0,
+        metadata={
+            "help": "evaluate at most this many test models per category (0: all)",
+            "selection": True,
+        },
+    )
+
+
 def capped(ids: Iterable[str], cap: int, seed: int, salt: str) -> list[str]:
     """At most ``cap`` of ``ids``, the first by hash rank, sorted: a smaller cap picks a subset
     of a larger one, so the training sets of a data-scaling sweep are nested."""

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from shapebench_meshes.selection import capped, hash_order, max_train_option
+from shapebench_meshes.selection import capped, hash_order, max_test_option, max_train_option
 
 from shapebench.api.dataset import Dataset, ObjectLoadError
 from shapebench.api.errors import DataNotFoundError
@@ -61,13 +61,7 @@ class PCNOptions:
             "picked by the seed; val and test models have only scan 0)"
         },
     )
-    max_test_per_category: int = field(
-        default=0,
-        metadata={
-            "help": "evaluate at most this many test models per category (0: all), by the seed",
-            "selection": True,
-        },
-    )
+    max_test_per_category: int = max_test_option()
     max_train_per_category: int = max_train_option()
     seed: int = field(default=0, metadata={"help": "seed of the picks (views, caps)"})
 

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from shapebench_meshes.selection import capped, hash_order, max_train_option
+from shapebench_meshes.selection import capped, hash_order, max_test_option, max_train_option
 from shapebench_shapenet.catalog import by_synset
 
 from shapebench.api.dataset import Dataset, ObjectLoadError
@@ -72,13 +72,7 @@ class ShapeNet55Options:
             "selection": True,
         },
     )
-    max_test_per_category: int = field(
-        default=0,
-        metadata={
-            "help": "evaluate at most this many test models per category (0: all), by the seed",
-            "selection": True,
-        },
-    )
+    max_test_per_category: int = max_test_option()
     validation_per_category: int = field(
         default=2,
         metadata={

@@ -22,7 +22,13 @@ from pathlib import Path
 from typing import ClassVar
 
 from shapebench_meshes.loading import load_mesh_file
-from shapebench_meshes.selection import capped, hash_order, max_train_option, split_ids
+from shapebench_meshes.selection import (
+    capped,
+    hash_order,
+    max_test_option,
+    max_train_option,
+    split_ids,
+)
 
 from shapebench.api.dataset import MeshDataset, MeshOptions, ObjectLoadError
 from shapebench.api.errors import ConfigError
@@ -57,13 +63,7 @@ class ShapeNetOptions(MeshOptions):
             "selection": True,
         },
     )
-    max_test_per_category: int = field(
-        default=0,
-        metadata={
-            "help": "evaluate at most this many test models per category (0: all)",
-            "selection": True,
-        },
-    )
+    max_test_per_category: int = max_test_option()
     max_train_per_category: int = max_train_option()
 
 

@@ -112,7 +112,7 @@ class ContextStore:
                 f"points after cropping {fraction:g}"
             )
         path = self.root / f"crop-{fraction:g}" / (data.ref.id.replace("/", "__") + ".npy")
-        stored = _read_prefix(path, len(keep))
+        stored = _read_order(path, len(keep), prefix_problem, "the crop order")
         if stored is None or len(stored) < size:
             rng = np.random.default_rng(
                 stable_seed(CONTEXTS_VERSION, "crop-start", self.fingerprint, data.ref.id)
@@ -174,9 +174,20 @@ def order_problem(order: np.ndarray, n: int) -> str | None:
     return None
 
 
-def _read_order(path: Path, n: int) -> np.ndarray | None:
-    """The valid order stored at ``path``; None when there is none (a damaged file is reported
-    and deleted, so the caller draws and stores the order again)."""
+def prefix_problem(order: np.ndarray, n: int) -> str | None:
+    """Why ``order`` is not a stored farthest-point order (distinct indices below ``n``)."""
+    ok = order.ndim == 1 and np.issubdtype(order.dtype, np.integer) and len(order) > 0
+    if ok and order.min() >= 0 and order.max() < n and len(np.unique(order)) == len(order):
+        return None
+    return f"is not a list of distinct indices below {n}"
+
+
+def _read_order(
+    path: Path, n: int, problem_of=order_problem, what: str = "the context order"
+) -> np.ndarray | None:
+    """The valid order stored at ``path`` (``problem_of`` says what valid is); None when there
+    is none (a damaged file is reported and deleted, so the caller draws and stores the order
+    again)."""
     try:
         order = np.load(path, allow_pickle=False)
     except FileNotFoundError:
@@ -184,29 +195,10 @@ def _read_order(path: Path, n: int) -> np.ndarray | None:
     except Exception as exc:  # truncated: ValueError/EOFError from numpy's reader
         problem = describe(exc)
     else:
-        problem = order_problem(order, n)
+        problem = problem_of(order, n)
         if problem is None:
             return order
-    warn_corrupt(path, problem, "drawing the context order again (the draw is deterministic)")
-    path.unlink(missing_ok=True)
-    return None
-
-
-def _read_prefix(path: Path, n: int) -> np.ndarray | None:
-    """A stored farthest-point order (distinct indices below ``n``), None when there is none
-    (a damaged one is reported and deleted, and drawn again: the draw is deterministic)."""
-    try:
-        order = np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        return None
-    except Exception as exc:  # truncated: ValueError/EOFError from numpy's reader
-        problem = describe(exc)
-    else:
-        ok = order.ndim == 1 and np.issubdtype(order.dtype, np.integer) and len(order) > 0
-        if ok and order.min() >= 0 and order.max() < n and len(np.unique(order)) == len(order):
-            return order
-        problem = f"is not a list of distinct indices below {n}"
-    warn_corrupt(path, problem, "drawing the crop order again (the draw is deterministic)")
+    warn_corrupt(path, problem, f"drawing {what} again (the draw is deterministic)")
     path.unlink(missing_ok=True)
     return None
 

@@ -146,6 +146,13 @@ def planned_cells(plan: RunPlan, split: str) -> list[tuple[int, int, dict, str]]
     return out
 
 
+def _cached(split: str, size: int, seed: int, done: Any, exp_id: str, cfg: dict) -> CellResult:
+    """The result of a cell found finished (``done``, its run) rather than computed."""
+    return CellResult(
+        split, size, seed, done.run_id, True, done.metrics, exp_id, cards=cfg["metrics"]
+    )
+
+
 def failure_reasons(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int]]:
     """The most common errors of a per-object table (failed objects, and metrics that raised
     on an object, as ``metric NAME: ...``), with their counts."""
@@ -433,18 +440,7 @@ class Runner:
                     pending.append((seed, size, cfg, key))
                     continue
                 self._relabel(done.run_id, plan)
-                results.append(
-                    CellResult(
-                        split,
-                        size,
-                        seed,
-                        done.run_id,
-                        True,
-                        done.metrics,
-                        exp_id,
-                        cards=cfg["metrics"],
-                    )
-                )
+                results.append(_cached(split, size, seed, done, exp_id, cfg))
             if not pending:
                 self._close_stale_parents(plan, split, exp_id)
                 continue
@@ -498,18 +494,7 @@ class Runner:
             # Finished by another process since we looked (unless recomputing on purpose).
             done = self.finished(plan, exp_id, key)
             if done is not None:
-                results.append(
-                    CellResult(
-                        split,
-                        size,
-                        seed,
-                        done.run_id,
-                        True,
-                        done.metrics,
-                        exp_id,
-                        cards=cfg["metrics"],
-                    )
-                )
+                results.append(_cached(split, size, seed, done, exp_id, cfg))
                 return
             results.append(self._run_cell(work, start_parent(), seed, size, cfg, key))
             self._describe_cell(plan, split, results[-1])
