@@ -42,12 +42,14 @@ _LAZY: dict[str, str] = {
     "Metric": "shapebench.api.metric",
     "MetricCard": "shapebench.api.metric",
     "UNIT_SPHERE_FRAME": "shapebench.api.metric",
+    "NotApplicable": "shapebench.api.metric",
     "Context": "shapebench.api.types",
     "Completion": "shapebench.api.types",
     "ObjectData": "shapebench.api.types",
     "ObjectRef": "shapebench.api.types",
     "Category": "shapebench.api.types",
     "Supervision": "shapebench.api.types",
+    "GroundTruthArray": "shapebench.api.types",
     "TRAIN": "shapebench.api.types",
     "TRAINED": "shapebench.api.types",
     "NOVEL": "shapebench.api.types",
@@ -73,12 +75,14 @@ __all__ = [
     "Metric",
     "MetricCard",
     "UNIT_SPHERE_FRAME",
+    "NotApplicable",
     "Context",
     "Completion",
     "ObjectData",
     "ObjectRef",
     "Category",
     "Supervision",
+    "GroundTruthArray",
     "TRAIN",
     "TRAINED",
     "NOVEL",
@@ -93,7 +97,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does th
     from shapebench.api.dataset import Dataset, MeshDataset, MeshOptions, ObjectLoadError
     from shapebench.api.errors import ShapebenchError
     from shapebench.api.method import Method, TrainerOptions, TrainingContext
-    from shapebench.api.metric import UNIT_SPHERE_FRAME, Metric, MetricCard
+    from shapebench.api.metric import UNIT_SPHERE_FRAME, Metric, MetricCard, NotApplicable
     from shapebench.api.options import NoOptions
     from shapebench.api.types import (
         NOVEL,
@@ -102,6 +106,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does th
         Category,
         Completion,
         Context,
+        GroundTruthArray,
         ObjectData,
         ObjectRef,
         Supervision,

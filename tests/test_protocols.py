@@ -11,14 +11,17 @@ from conftest import TINY
 
 from shapebench.api.contexts import (
     CROP_VIEWPOINTS,
+    DEPTH_VIEWPOINTS,
     ContextStore,
     crop_keep,
     crop_viewpoint,
+    depth_viewpoint,
     farthest_point_order,
 )
 from shapebench.api.errors import ConfigError
 from shapebench.api.protocol import Protocol
 from shapebench.api.types import ObjectData, ObjectRef
+from shapebench.geometry.hidden_points import visible_from
 
 
 def _data(n: int = 4000, object_id: str = "cat/obj-1") -> ObjectData:
@@ -78,6 +81,49 @@ def test_crop_contexts_are_nested_seeded_stored_and_cropped(tmp_path) -> None:
         store.context(data, 2001, 0, protocol=protocol)
 
 
+def test_a_camera_sees_the_near_cap_of_a_sphere() -> None:
+    # From distance 3, a unit sphere's visible cap is where z > 1/3: a third of its area.
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(20000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    seen = visible_from(sphere, np.array([0.0, 0.0, 3.0]))
+    assert abs(len(seen) / len(sphere) - 1 / 3) < 0.02
+    assert sphere[seen, 2].min() > 0.25  # nothing from the far side
+    hidden = np.setdiff1d(np.arange(len(sphere)), seen)
+    assert sphere[hidden, 2].max() < 0.4
+
+
+def test_a_point_behind_a_wall_is_hidden() -> None:
+    # A dense wall at z = 1 between the camera (z = 3) and a point at the origin hides it; the
+    # same point beside the wall is seen.
+    g = np.linspace(-1, 1, 41)
+    wall = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    wall = np.concatenate([wall, np.ones((len(wall), 1))], axis=1)
+    points = np.concatenate([wall, [[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]])
+    seen = set(visible_from(points, np.array([0.0, 0.0, 3.0])).tolist())
+    assert len(wall) not in seen and len(wall) + 1 in seen
+
+
+def test_depth_contexts_are_one_seeded_view_nested_and_stored(tmp_path) -> None:
+    data = _data()
+    protocol = Protocol(context="depth")
+    store = ContextStore(tmp_path, "fingerprint-a")
+    c64, c512 = (store.context(data, k, 0, protocol=protocol) for k in (64, 512))
+    np.testing.assert_array_equal(c512.points[:64], c64.points)
+    view = DEPTH_VIEWPOINTS[depth_viewpoint("fingerprint-a", data.ref.id)]
+    # The camera's side of the sphere: its cap (cos > 1/3 from the centre), give or take the
+    # silhouette, where hidden point removal on 4,000 points is approximate.
+    cos = c512.points @ view / np.linalg.norm(view)
+    assert cos.min() > 0.1 and np.mean(cos > 1 / 3) > 0.9
+    assert list((tmp_path / "contexts-v1" / "depth").glob("*.npy"))
+    again = ContextStore(tmp_path, "fingerprint-a").context(data, 512, 0, protocol=protocol)
+    np.testing.assert_array_equal(again.points, c512.points)
+    with pytest.raises(ValueError, match="visible from the depth camera"):
+        store.context(data, 3000, 0, protocol=protocol)
+    assert len(DEPTH_VIEWPOINTS) == 16
+    assert len({depth_viewpoint("fp", f"cat/obj-{i}") for i in range(60)}) >= 10
+
+
 def test_the_viewpoint_varies_over_objects() -> None:
     views = {crop_viewpoint("fp", f"cat/obj-{i}") for i in range(40)}
     assert len(views) >= 6
@@ -120,6 +166,8 @@ def test_the_papers_protocol_keeps_its_keys() -> None:
         ({"context_noise": -0.1}, "must be a standard deviation >= 0"),
         ({"context": "crop", "crop_fraction": 0.5, "context_normals": True}, "has no normals"),
         ({"context": "scan"}, "unknown context protocol 'scan'"),
+        ({"context": "depth", "context_normals": True}, "depth contexts .* no normals"),
+        ({"context": "depth", "crop_fraction": 0.5}, "needs --protocol crop"),
     ],
 )
 def test_a_bad_protocol_is_one_clear_error(kwargs, message) -> None:
@@ -143,6 +191,9 @@ def test_crop_and_noise_runs_are_rows_and_tables_of_their_own(shapebench, tmp_pa
     # TINY samples 2,000 ground-truth points: a crop of 0.5 leaves 1,000, said before any cell.
     res = shapebench(*base, "--contexts", "1024", "--protocol", "crop", "--crop-fraction", "0.5")
     assert res.returncode == 2 and "larger than the 1000 ground-truth points a crop" in res.stderr
+    res = shapebench(*base, "--contexts", "50", "--protocol", "depth")
+    assert res.returncode == 0, res.stderr
+    assert "gauss[protocol=depth] on synthetic/trained" in res.stdout
     # Nothing recomputed by asking again: the keys are stable.
     res = shapebench(*base, "--contexts", "50,512", "--protocol", "crop", "--crop-fraction", "0.5")
     assert res.stdout.count("cached") == 2, res.stdout
@@ -153,6 +204,7 @@ def test_crop_and_noise_runs_are_rows_and_tables_of_their_own(shapebench, tmp_pa
     names = sorted(p.name for p in out.glob("*.md"))
     assert names == [
         "synthetic-trained-crop-0_5.md",
+        "synthetic-trained-depth.md",
         "synthetic-trained-sparse+noise-0_005.md",
         "synthetic-trained.md",
     ]
@@ -160,6 +212,8 @@ def test_crop_and_noise_runs_are_rows_and_tables_of_their_own(shapebench, tmp_pa
     assert "**Protocol**: contexts cropped ShapeNet-55 style" in crop
     assert "`gauss[crop=0.5]`" in crop and "raw 512" in crop
     assert "No runs of the reference" not in crop  # gauss[crop=0.5] is the table's gauss
+    depth = (out / "synthetic-trained-depth.md").read_text()
+    assert "**Protocol**: contexts a simulated single-view depth scan" in depth
     sparse = (out / "synthetic-trained.md").read_text()
     assert "**Protocol**: contexts carry points only" in sparse
     assert "crop=0.5" not in sparse.split("Left out")[-1].split("| Method")[-1]

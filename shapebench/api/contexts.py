@@ -18,6 +18,12 @@ farthest-point order is nested as well (its first 50 points are the farthest-poi
 and it is stored like the sparse order, as long as the largest size asked for. ``context_noise``
 adds seeded Gaussian noise, one draw per point of the source cloud, so a point carries the same
 noise at every size and for every method.
+
+Under ``--protocol depth`` the points are those of the complete ground-truth cloud that one
+camera sees: one of 16 fixed viewpoints (a Fibonacci lattice on a sphere of radius 3, the
+distance of the preprocessing's viewpoints; the one chosen per object by a seed), visibility by
+hidden point removal (:mod:`shapebench.geometry.hidden_points`), then the same stored
+farthest-point order as ``crop``.
 """
 
 from __future__ import annotations
@@ -31,7 +37,9 @@ import numpy as np
 from shapebench.api.errors import describe, warn_corrupt
 from shapebench.api.protocol import Protocol
 from shapebench.api.types import Context, ObjectData
+from shapebench.geometry.hidden_points import visible_from
 from shapebench.hashing import array_digest, stable_seed
+from shapebench.preprocess.visibility import fibonacci_viewpoints
 
 CONTEXTS_VERSION = "contexts-v1"
 
@@ -45,6 +53,17 @@ def crop_viewpoint(fingerprint: str, object_id: str) -> int:
     """Which of :data:`CROP_VIEWPOINTS` crops the object (the same for every method and size)."""
     rng = np.random.default_rng(stable_seed(CONTEXTS_VERSION, "crop-view", fingerprint, object_id))
     return int(rng.integers(len(CROP_VIEWPOINTS)))
+
+
+#: The 16 cameras of ``--protocol depth`` (Projected-ShapeNet renders 16 views per object), on
+#: a sphere of radius 3 around the unit-radius object, like the preprocessing's viewpoints.
+DEPTH_VIEWPOINTS = fibonacci_viewpoints(16, 3.0)
+
+
+def depth_viewpoint(fingerprint: str, object_id: str) -> int:
+    """Which of :data:`DEPTH_VIEWPOINTS` scans the object (the same for every method and size)."""
+    rng = np.random.default_rng(stable_seed(CONTEXTS_VERSION, "depth-view", fingerprint, object_id))
+    return int(rng.integers(len(DEPTH_VIEWPOINTS)))
 
 
 def crop_keep(points: np.ndarray, viewpoint: np.ndarray, fraction: float) -> np.ndarray:
@@ -100,22 +119,41 @@ class ContextStore:
             _save_atomic(path, order)
         return order
 
+    def partial_points(self, data: ObjectData, protocol: Protocol) -> np.ndarray:
+        """Indices into ``data.gt_points`` of the partial cloud a ``crop`` or ``depth`` context
+        is sampled from (what a crop leaves; what the camera sees)."""
+        if protocol.context == "depth":
+            view = DEPTH_VIEWPOINTS[depth_viewpoint(self.fingerprint, data.ref.id)]
+            return visible_from(data.gt_points, view)
+        view = CROP_VIEWPOINTS[crop_viewpoint(self.fingerprint, data.ref.id)]
+        return crop_keep(data.gt_points, view, protocol.crop_fraction)
+
     def crop_order(self, data: ObjectData, fraction: float, size: int) -> np.ndarray:
         """Indices into ``data.gt_points`` of the crop context of ``size`` points (the stored
         farthest-point order, extended and stored again when a larger size is asked for)."""
+        return self.partial_order(data, Protocol(context="crop", crop_fraction=fraction), size)
+
+    def partial_order(self, data: ObjectData, protocol: Protocol, size: int) -> np.ndarray:
+        """Indices into ``data.gt_points`` of the ``crop`` or ``depth`` context of ``size``
+        points (the stored farthest-point order of the partial cloud, extended and stored again
+        when a larger size is asked for)."""
         n = len(data.gt_points)
-        view = CROP_VIEWPOINTS[crop_viewpoint(self.fingerprint, data.ref.id)]
-        keep = crop_keep(data.gt_points, view, fraction)
+        keep = self.partial_points(data, protocol)
         if size > len(keep):
-            raise ValueError(
-                f"context size {size} exceeds the {len(keep)} points left of {n} ground-truth "
-                f"points after cropping {fraction:g}"
-            )
-        path = self.root / f"crop-{fraction:g}" / (data.ref.id.replace("/", "__") + ".npy")
-        stored = _read_order(path, len(keep), prefix_problem, "the crop order")
+            if protocol.context == "depth":
+                why = f"points of {n} ground-truth points visible from the depth camera"
+            else:
+                why = f"points left of {n} ground-truth points after cropping "
+                why += f"{protocol.crop_fraction:g}"
+            raise ValueError(f"context size {size} exceeds the {len(keep)} {why}")
+        folder = "depth" if protocol.context == "depth" else f"crop-{protocol.crop_fraction:g}"
+        path = self.root / folder / (data.ref.id.replace("/", "__") + ".npy")
+        stored = _read_order(path, len(keep), prefix_problem, f"the {protocol.context} order")
         if stored is None or len(stored) < size:
             rng = np.random.default_rng(
-                stable_seed(CONTEXTS_VERSION, "crop-start", self.fingerprint, data.ref.id)
+                stable_seed(
+                    CONTEXTS_VERSION, f"{protocol.context}-start", self.fingerprint, data.ref.id
+                )
             )
             start = int(rng.integers(len(keep)))
             stored = farthest_point_order(data.gt_points[keep], size, start)
@@ -145,8 +183,8 @@ class ContextStore:
         protocol = protocol or Protocol(context_normals=normals)
         normals = normals or protocol.context_normals
         seed = stable_seed("method", self.fingerprint, data.ref.id, size, run_seed)
-        if protocol.context == "crop":
-            idx = self.crop_order(data, protocol.crop_fraction, size)
+        if protocol.context in ("crop", "depth"):
+            idx = self.partial_order(data, protocol, size)
             points, source = data.gt_points[idx], "gt"
             point_normals = None
         else:

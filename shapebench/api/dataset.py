@@ -24,7 +24,14 @@ import numpy as np
 
 from shapebench.api.errors import describe, warn_corrupt
 from shapebench.api.options import NoOptions
-from shapebench.api.types import EVAL_SPLITS, Category, ObjectData, ObjectRef, Supervision
+from shapebench.api.types import (
+    EVAL_SPLITS,
+    Category,
+    GroundTruthArray,
+    ObjectData,
+    ObjectRef,
+    Supervision,
+)
 from shapebench.hashing import stable_hash, stable_seed
 from shapebench.preprocess import (
     PREPROCESS_VERSION,
@@ -69,6 +76,11 @@ class Dataset(ABC):
     #: (:attr:`~shapebench.api.metric.Metric.needs_ground_truth` False) and the others are
     #: refused by name; methods complete :meth:`points_to_complete` points.
     has_ground_truth: ClassVar[bool] = True
+    #: The ground-truth arrays beyond ``gt_points`` that :meth:`load` can build when asked
+    #: (:class:`~shapebench.api.types.GroundTruthArray`: oriented points, occupancy queries).
+    #: Datasets of meshes build them all; datasets of bare points none, and the metrics needing
+    #: them (normal consistency, IoU) are recorded as not applicable there.
+    provides_ground_truth: ClassVar[frozenset[GroundTruthArray]] = frozenset()
     #: Option overrides that make the dataset tiny for ``shapebench check`` and
     #: :mod:`shapebench.registry.testing` (few objects, few points).
     check_options: ClassVar[dict[str, Any]] = {}
@@ -137,13 +149,17 @@ class Dataset(ABC):
         """The objects of ``split`` (``train``, ``trained`` or ``novel``), in a stable order."""
 
     @abstractmethod
-    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
+    def load(
+        self, ref: ObjectRef, need: frozenset[Supervision | GroundTruthArray] = frozenset()
+    ) -> ObjectData:
         """The preprocessed arrays of one object; raise :class:`ObjectLoadError` if impossible.
 
         Always: visible surface points and normals, and the ground truth. ``need`` asks for
         training supervision as well, in ``ObjectData.extra``: ``"sdf"`` (``(m, 4)`` rows of
         x, y, z, sdf) for SDF_SAMPLES, ``"occupancy"`` (x, y, z, 1 if inside) for
-        OCCUPANCY_SAMPLES, ``"complete_points"`` for COMPLETE_POINTS.
+        OCCUPANCY_SAMPLES, ``"complete_points"`` for COMPLETE_POINTS; and ground-truth arrays for
+        metrics, under their :class:`GroundTruthArray` value, for those in
+        :attr:`provides_ground_truth` (others are ignored).
         """
 
     @property
@@ -214,6 +230,7 @@ class MeshDataset(Dataset):
     """
 
     Options: ClassVar[type] = MeshOptions
+    provides_ground_truth: ClassVar[frozenset[GroundTruthArray]] = frozenset(GroundTruthArray)
 
     @abstractmethod
     def mesh(self, ref: ObjectRef):  # -> trimesh.Trimesh
@@ -231,7 +248,9 @@ class MeshDataset(Dataset):
             surface_candidates=o.surface_candidates, gt_points=o.gt_points, viewpoints=o.viewpoints
         )
 
-    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
+    def load(
+        self, ref: ObjectRef, need: frozenset[Supervision | GroundTruthArray] = frozenset()
+    ) -> ObjectData:
         path = self.cache_path(ref)
         failed = path.with_suffix(".error.txt")
         if failed.exists():  # preprocessing already failed for this exact data version
@@ -243,6 +262,8 @@ class MeshDataset(Dataset):
         for kind in need:
             if kind in _EXTRA_ARRAYS:
                 extra[_EXTRA_ARRAYS[kind]] = self._extra(ref, kind)
+            elif isinstance(kind, GroundTruthArray):
+                extra[kind.value] = self._ground_truth(ref, kind)
         return ObjectData(
             ref, arrays["surface_points"], arrays["surface_normals"], arrays["gt_points"], extra
         )
@@ -254,11 +275,10 @@ class MeshDataset(Dataset):
         cached = _read_npz(path)
         if cached is not None:
             return cached[name]
-        from shapebench.preprocess.normalize import normalize
         from shapebench.preprocess.samples import complete_points, occupancy_samples, sdf_samples
 
         try:
-            unit, _, _ = normalize(self.mesh(ref))
+            unit = self._unit_mesh(ref)
         except Exception as exc:
             raise ObjectLoadError(f"cannot build {name}: {type(exc).__name__}: {exc}") from exc
         rng = np.random.default_rng(stable_seed(name, self.training_data_fingerprint(), ref.id))
@@ -270,6 +290,36 @@ class MeshDataset(Dataset):
             array = complete_points(unit, self.options.complete_points, rng)
         save_npz_atomic(path, {name: array})
         return array
+
+    def _ground_truth(self, ref: ObjectRef, kind: GroundTruthArray) -> np.ndarray:
+        """A ground-truth array for metrics, built from the normalised mesh on first use and
+        cached beside the object's arrays (seeded by the data fingerprint: the same points for
+        every method, run and machine)."""
+        from shapebench.preprocess.samples import IOU_POINTS, occupancy_samples, oriented_points
+
+        name = kind.value
+        path = self.cache_root / "ground-truth" / (ref.id.replace("/", "__") + f".{name}.npz")
+        cached = _read_npz(path)
+        if cached is not None:
+            return cached[name]
+        try:
+            unit = self._unit_mesh(ref)
+        except Exception as exc:
+            raise ObjectLoadError(f"cannot build {name}: {type(exc).__name__}: {exc}") from exc
+        rng = np.random.default_rng(stable_seed(name, self.data_fingerprint(), ref.id))
+        if kind is GroundTruthArray.ORIENTED_POINTS:
+            array = oriented_points(unit, self.options.gt_points, rng)
+        else:
+            array = occupancy_samples(unit, IOU_POINTS, rng)
+        save_npz_atomic(path, {name: array})
+        return array
+
+    def _unit_mesh(self, ref: ObjectRef):
+        """The object's mesh in the benchmark frame (the normalisation preprocessing applied)."""
+        from shapebench.preprocess.normalize import normalize
+
+        unit, _, _ = normalize(self.mesh(ref))
+        return unit
 
     @property
     def training_cache_root(self) -> Path:

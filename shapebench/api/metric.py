@@ -20,7 +20,7 @@ from dataclasses import dataclass, fields, replace
 from typing import Any, ClassVar, Literal
 
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES, frame_description
-from shapebench.api.types import Completion, Context, ObjectData
+from shapebench.api.types import Completion, Context, GroundTruthArray, ObjectData
 
 #: The frame metrics are defined in; the runner sets the card's frame to the run's protocol frame
 #: (see :mod:`shapebench.api.protocol`), since it scales shapes into that frame before scoring.
@@ -283,6 +283,15 @@ def _body(card: MetricCard) -> str:
     return what + per_set + (f", {joined}" if joined else "")
 
 
+class NotApplicable(Exception):
+    """Raised by :meth:`Metric.compute` when the metric does not apply to this completion or
+    object: a mesh metric on a completion that is points only (PCN, Gauss), a metric needing
+    ground-truth normals on a dataset of bare points. The runner records the value as *not
+    applicable* with the message as its reason: not a failure of the object, never a zero, and
+    leaderboards show ``n/a``. The message says why in a few words ("the completion is points
+    only, with no mesh")."""
+
+
 class Metric(ABC):
     """A score of one completion against the ground truth.
 
@@ -307,6 +316,11 @@ class Metric(ABC):
     #: with its input only (fidelity) say False: they are the ones that apply to datasets
     #: without ground truth, where they are computed by default.
     needs_ground_truth: ClassVar[bool] = True
+    #: Ground-truth arrays beyond ``gt_points`` that ``compute`` reads from
+    #: ``ground_truth.extra`` (a :class:`~shapebench.api.types.GroundTruthArray` value each). The
+    #: runner asks the dataset for them; a dataset that cannot build them (bare points) leaves
+    #: them out, and ``compute`` raises :class:`NotApplicable`.
+    needs: ClassVar[frozenset[GroundTruthArray]] = frozenset()
 
     @abstractmethod
     def card(self, eval_points: int) -> MetricCard:
@@ -322,11 +336,14 @@ class Metric(ABC):
         """Score ``prediction`` against ``ground_truth.gt_points``; return one float.
 
         ``prediction.points`` and ``ground_truth.gt_points`` are ``(n, 3)`` arrays already scaled
-        into the run's evaluation frame, as is ``context.points`` (when the frame scales shapes,
-        ``prediction`` carries only ``points``, ``samples`` and ``info``). ``prediction.cache`` and
+        into the run's evaluation frame, as are ``context.points``, ``prediction.mesh`` and the
+        arrays of ``needs`` (when the frame scales shapes, ``prediction`` carries ``points``,
+        ``mesh``, ``samples`` and ``info``, not ``sdf``). ``prediction.cache`` and
         ``ground_truth.cache`` are scratch dicts shared by the metrics of one object (nearest
-        neighbour distances, KD-trees); prefix your keys with the metric's name. Raise, or return
-        NaN, when the value cannot be computed: the object is then recorded as failed.
+        neighbour distances, KD-trees); prefix your keys with the metric's name. Raise
+        :class:`NotApplicable` when the metric does not apply (no mesh, no ground-truth normals);
+        raise anything else, or return NaN, when the value cannot be computed: the metric is then
+        recorded as failed on that object.
         """
 
 
@@ -335,8 +352,9 @@ class Metric(ABC):
 PRESETS: dict[str, tuple[str, ...]] = {
     # PCN / PoinTr / AdaPoinTr tables: CD-L1 (halved), CD-L2 (squared, summed), F-Score@0.01.
     "pcn": ("chamfer-l1-pointr", "chamfer-l2", "fscore"),
-    # ConvONet / POCO: Chamfer-L1 = 1/2 (accuracy + completeness), F-Score at 1 %.
-    "convonet": ("chamfer-l1-pointr", "fscore"),
+    # ConvONet / POCO: IoU, Chamfer-L1 = 1/2 (accuracy + completeness), normal consistency,
+    # F-Score at 1 %.
+    "convonet": ("iou", "chamfer-l1-pointr", "normal-consistency", "fscore"),
     # The MVP benchmark and DCD papers: CD-L2, DCD, F-Score.
     "mvp": ("chamfer-l2", "dcd", "fscore"),
     # The MSC paper's tables (with --frame unit-diameter).

@@ -12,10 +12,14 @@ cell key, recorded as run tags and printed in the leaderboard header.
   sizes. ``crop`` (ShapeNet-55's): the object's complete ground-truth cloud less the
   ``crop_fraction`` of its points nearest one of 8 fixed viewpoints (the corners of a cube, the
   one chosen per object from a seed), then k points of it by farthest-point sampling from a
-  seeded start, also nested. ``context_noise`` adds seeded Gaussian noise of that standard
-  deviation to the context points of either (0.005 and 0.025 are the field's levels); the noise of
-  a point is the same at every size and for every method. A cell with another context is
-  another cell, and another leaderboard table (its header names the protocol).
+  seeded start, also nested. ``depth`` (a simulated single-view depth scan, the idea of
+  Projected-ShapeNet): the points of the complete ground-truth cloud visible from one of 16 fixed
+  viewpoints around the object (hidden point removal; the one chosen per object from a seed),
+  then farthest-point sampled like ``crop``. ``context_noise`` adds seeded Gaussian noise of that
+  standard deviation to the context points of any of them (0.005 and 0.025 are the field's
+  levels); the noise of a point is the same at every size and for every method. A cell with
+  another context is another cell, and another leaderboard table (its header names the
+  protocol).
 * ``frame``: the scale shapes are measured in. Objects are always normalised to a maximum vertex
   distance of 1 (``unit-radius``), and methods always work in that frame; ``unit-diameter``
   scales completion and ground truth by 1/2 before scoring (squared distances by 1/4), the scale
@@ -69,7 +73,7 @@ def scores_agree(a: float, b: float, rtol: float = SCORE_RTOL) -> bool:
 
 
 #: Where context points come from (see the module docstring).
-CONTEXTS = ("sparse", "crop")
+CONTEXTS = ("sparse", "crop", "depth")
 DEFAULT_CONTEXT = "sparse"
 
 
@@ -110,9 +114,10 @@ class Protocol:
                 f"--context-noise must be a standard deviation >= 0, got {self.context_noise}",
                 "e.g. --context-noise 0.005",
             )
-        if self.context == "crop" and self.context_normals:
+        if self.context in ("crop", "depth") and self.context_normals:
             raise ConfigError(
-                "crop contexts are drawn from the ground-truth cloud, which has no normals",
+                f"{self.context} contexts are drawn from the ground-truth cloud, which has no "
+                "normals",
                 "drop --context-normals, or use --protocol sparse",
             )
 
@@ -159,7 +164,12 @@ class Protocol:
 
 def describe_context(context: str, crop_fraction: float = 0.0, noise: float = 0.0) -> str:
     """The context protocol in words (also for a run's tags, without a Protocol)."""
-    if context == "crop":
+    if context == "depth":
+        what = (
+            "contexts a simulated single-view depth scan: the complete cloud's points visible "
+            "from one of 16 fixed viewpoints (hidden point removal), farthest-point sampled"
+        )
+    elif context == "crop":
         what = (
             f"contexts cropped ShapeNet-55 style: the complete cloud less the {crop_fraction:g} "
             "of its points nearest one of 8 fixed viewpoints, farthest-point sampled"

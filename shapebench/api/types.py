@@ -38,6 +38,23 @@ class Supervision(str, Enum):
         return self.value
 
 
+class GroundTruthArray(str, Enum):
+    """Ground-truth arrays beyond ``gt_points`` that some metrics read (``Metric.needs``), built
+    on first use from the object's mesh and cached. A dataset lists those it can build in
+    ``Dataset.provides_ground_truth``; a dataset of bare points builds none, and metrics that
+    need them are recorded as not applicable there."""
+
+    #: ``(n, 6)``: points over the whole surface and the unit normals of their faces (normal
+    #: consistency; ConvONet's ``pointcloud.npz``).
+    ORIENTED_POINTS = "gt_oriented_points"
+    #: ``(n, 4)``: points uniform in the padded box [-1.1, 1.1]^3 and 1 where inside the mesh
+    #: (volumetric IoU; ConvONet's ``points.npz``).
+    OCCUPANCY = "gt_occupancy"
+
+    def __str__(self) -> str:
+        return self.value
+
+
 @dataclass(frozen=True)
 class Category:
     name: str
@@ -71,7 +88,8 @@ class ObjectData:
     surface_normals: np.ndarray
     #: ``(m, 3)`` ground-truth points over the whole surface: what metrics compare against.
     gt_points: np.ndarray
-    #: Training arrays by name (``"sdf"``, ``"occupancy"``, ``"complete_points"``), when asked for.
+    #: Training arrays by name (``"sdf"``, ``"occupancy"``, ``"complete_points"``) and
+    #: ground-truth arrays (:class:`GroundTruthArray` values), when asked for.
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     #: Scratch space for metrics (the ground truth's KD-tree is built once per object).
     cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)

@@ -61,6 +61,9 @@ class Board:
     runs: pd.DataFrame | None = None
     #: The context protocol's name (``sparse``, ``crop-0.5``...): one table per protocol.
     context: str = "sparse"
+    #: Variant key -> why the metric does not apply to it (a points-only method under a mesh
+    #: metric): its cells show ``n/a`` and the reason is printed under the table.
+    not_applicable: dict[str, str] = field(default_factory=dict)
 
 
 def table_id(board: Board) -> str:

@@ -79,6 +79,9 @@ def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFra
     frames = []
     for run, table in per_object_tables(tracker, runs):
         table["value"] = table.get(metric, np.nan)
+        # Why the metric did not apply to an object (no mesh...): such objects have no value.
+        reason = table.get(f"not_applicable.{metric}", pd.Series("", index=table.index))
+        table["not_applicable"] = reason.fillna("").astype(str)
         table["variant"] = run["variant_key"]
         table["label"] = run["_label"]
         table["context"] = int(run["context_size"])
@@ -101,6 +104,7 @@ def _per_object(tracker: Tracker, runs: pd.DataFrame, metric: str) -> pd.DataFra
             "status",
             "value",
             "seconds",
+            "not_applicable",
         ]
         frames.append(table[cols])
     return pd.concat(frames, ignore_index=True)
@@ -204,7 +208,7 @@ def label_runs(runs: pd.DataFrame) -> pd.DataFrame:
 
 
 #: The row-label overrides a context protocol adds (registry/variant.py).
-_PROTOCOL_OVERRIDES = {"crop", "noise"}
+_PROTOCOL_OVERRIDES = {"crop", "protocol", "noise"}
 
 
 def _context_words(name: str) -> str:
@@ -327,6 +331,13 @@ def build_board(
     card = cards.index[0]
     higher = _higher_is_better(metric, card)
     per_obj = _per_object(tracker, runs, metric)
+    # Objects the metric does not apply to leave the statistics (neither a failure nor a value).
+    skipped = per_obj["not_applicable"] != ""
+    not_applicable = {
+        str(v): "; ".join(sorted(set(g)))
+        for v, g in per_obj[skipped].groupby("variant")["not_applicable"]
+    }
+    per_obj = per_obj[~skipped].drop(columns="not_applicable")
     scored = board_stats.with_failure_rule(per_obj, higher)
     raw = board_stats.raw_table(scored)
     scale = _scale(card)
@@ -371,7 +382,7 @@ def build_board(
         metric,
         card,
         reference,
-        sorted(raw["context"].unique().tolist()),
+        sorted(int(c) for c in runs["context_size"].unique()),
         rows,
         raw,
         normalized,
@@ -389,6 +400,7 @@ def build_board(
         row_costs(tracker, runs, scored),
         runs,
         context=protocol_name,
+        not_applicable=not_applicable,
     )
 
 
@@ -437,7 +449,7 @@ def _default_metric(runs: pd.DataFrame) -> str:
 def _cell(board: Board, row: Row, ctx: int) -> str:
     r = board.raw[(board.raw.variant == row.variant) & (board.raw.context == ctx)]
     if r.empty:
-        return "–"
+        return "n/a" if row.variant in board.not_applicable else "–"
     r = r.iloc[0]
     if r["n_ok"] == 0:
         return f"failed (0/{int(r['n'])})"
@@ -529,14 +541,14 @@ def render_markdown(
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in board.rows:
         raw = board.raw[board.raw.variant == row.variant]
-        n = int(raw["n"].max())
+        n = str(int(raw["n"].max())) if len(raw) else "–"
         fails = "/".join(
             str(int(raw[raw.context == c]["failures"].sum())) if c in set(raw.context) else "–"
             for c in ctxs
         )
         cells = [_cell(board, row, c) for c in ctxs] + [_norm_cell(board, row, c) for c in ctxs]
         name = f"{row.display} (`{row.label}`)"
-        cells += [str(n), fails] + _cost_cells(board, row)
+        cells += [n, fails] + _cost_cells(board, row)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     direction = "highest" if _higher_is_better(board.metric, board.card) else "lowest"
     lines += [
@@ -546,6 +558,7 @@ def render_markdown(
         f"{board_stats.ALPHA}); p-values are in the CSV (`p_vs_best`, `p_holm`). A failed object "
         "scores as the worst successful score of its cell, (n_ok/n ok) says how many succeeded, "
         "and the success-only mean is in the CSV (`mean_ok`).",
+        *_not_applicable_lines(board),
         "",
         "Rows (options that differ from the profile's defaults):",
         "",
@@ -576,6 +589,25 @@ def render_markdown(
     if board.note:
         lines += ["", f"> {board.note}"]
     return "\n".join(lines) + "\n"
+
+
+def _not_applicable_lines(board: Board) -> list[str]:
+    """Why some rows show n/a: the metric does not apply to them (never a failure or a 0)."""
+    labels = {r.variant: r.label for r in board.rows}
+    return (
+        [
+            "",
+            *(
+                f"n/a: {board.metric} does not apply to `{labels.get(v, v)}`: {reason} (those "
+                "objects are neither failures nor values)."
+                for v, reason in sorted(
+                    board.not_applicable.items(), key=lambda kv: labels.get(kv[0], kv[0])
+                )
+            ),
+        ]
+        if board.not_applicable
+        else []
+    )
 
 
 def _paper_section(board: Board, header: list[str]) -> list[str]:
@@ -622,6 +654,21 @@ def tidy_csv(board: Board) -> pd.DataFrame:
     frames.append(raw.assign(source="shapebench", kind="raw"))
     if board.normalized is not None and not board.normalized.empty:
         frames.append(board.normalized.assign(source="shapebench", kind="normalized"))
+    if board.not_applicable:  # a line per context for rows the metric does not apply to
+        frames.append(
+            pd.DataFrame(
+                [
+                    {
+                        "variant": v,
+                        "label": labels[v].label if v in labels else "",
+                        "context": c,
+                        "not_applicable": reason,
+                    }
+                    for v, reason in board.not_applicable.items()
+                    for c in board.contexts
+                ]
+            ).assign(source="shapebench", kind="not_applicable")
+        )
     out = pd.concat(frames, ignore_index=True)
     out["method"] = out["variant"].map(lambda v: labels[v].method if v in labels else "")
     out["display"] = out["variant"].map(lambda v: labels[v].display if v in labels else "")
@@ -699,6 +746,8 @@ def tidy_csv(board: Board) -> pd.DataFrame:
     ]
     if board.costs is not None:
         cols += COST_COLUMNS
+    if board.not_applicable:  # only then: the CSVs of other tables keep their columns
+        cols.append("not_applicable")
     for c in cols:
         if c not in out:
             out[c] = np.nan

@@ -70,7 +70,11 @@ def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
                 categories=len(per_category),
             )
         rows.append(row)
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=RAW_COLUMNS if not rows else None)
+
+
+#: The columns of an empty raw table (every object of every row without a value).
+RAW_COLUMNS = ["variant", "label", "context", "mean", "std", "mean_ok", "std_ok", "n", "n_ok"]
 
 
 def _summary(variant: str, ctx: int, group: pd.DataFrame, values: np.ndarray) -> dict:

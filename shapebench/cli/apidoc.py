@@ -67,10 +67,18 @@ OPTION_METADATA = [
 SECTIONS: list[tuple[str, list[str]]] = [
     ("Methods", ["Method", "TrainingContext", "TrainerOptions"]),
     ("Datasets", ["Dataset", "MeshDataset", "MeshOptions", "ObjectLoadError"]),
-    ("Metrics", ["Metric", "MetricCard"]),
+    ("Metrics", ["Metric", "MetricCard", "NotApplicable"]),
     (
         "Data passed between plugins",
-        ["Context", "Completion", "ObjectData", "ObjectRef", "Category", "Supervision"],
+        [
+            "Context",
+            "Completion",
+            "ObjectData",
+            "ObjectRef",
+            "Category",
+            "Supervision",
+            "GroundTruthArray",
+        ],
     ),
     ("Errors", ["ShapebenchError"]),
 ]

@@ -166,12 +166,13 @@ def context_options(f):
     f = click.option(
         "--protocol",
         "context_protocol",
-        type=click.Choice(["sparse", "crop"]),
+        type=click.Choice(["sparse", "crop", "depth"]),
         default=None,
         help="sparse: the paper's points on the visible surface [default]; crop: ShapeNet-55's "
         "partial shapes (the complete cloud less the part nearest a viewpoint, farthest-point "
-        "sampled; the field uses --contexts 2048). leaderboard and report: the tables of this "
-        "protocol only [default: a table per protocol with runs].",
+        "sampled; the field uses --contexts 2048); depth: a simulated single-view scan (the "
+        "complete cloud's points one camera sees, farthest-point sampled). leaderboard and "
+        "report: the tables of this protocol only [default: a table per protocol with runs].",
     )(f)
     return f
 

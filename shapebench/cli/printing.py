@@ -46,11 +46,19 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
         for c in sorted(cells, key=lambda c: (c.seed, c.context_size)):
             m = c.metrics
             value = _pm(m.get(f"{metric}.mean"), m.get(f"{metric}.std"), c.scale(metric))
+            if f"{metric}.mean" not in m and m.get(f"{metric}.not_applicable"):
+                value = "n/a"
             state = "cached" if c.skipped else "new"
             click.echo(
                 f"  {c.context_size:>7}  {c.seed:>4}  {int(m.get('n_objects', 0)):>7}  "
                 f"{int(m.get('failures', 0)):>6}  {value:>18}  {state:<9}"
             )
+        shown: set[tuple[str, str]] = set()
+        for c in cells:  # once per split: the reason is the method's or the dataset's
+            for name_, reason, count in c.not_applicable:
+                if (name_, reason) not in shown:
+                    shown.add((name_, reason))
+                    click.echo(f"  {name_}: not applicable to {count} objects: {reason}")
         failed = sum(int(c.metrics.get("failures", 0)) for c in cells)
         if failed:
             click.secho(f"  {failed} object evaluations failed", fg="yellow")

@@ -131,9 +131,10 @@ def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
     method = resolve_method(registry, req.method, settings, req.method_opts)
     dataset = resolve_dataset(registry, req.dataset, settings, req.data_root, req.dataset_opts)
     splits = _check_splits(dataset, req.splits)
-    if req.protocol.context == "crop" and not dataset.has_ground_truth:
+    if req.protocol.context in ("crop", "depth") and not dataset.has_ground_truth:
         raise ShapebenchError(
-            f"crop contexts are cut from the ground truth, and dataset {dataset.name!r} has none",
+            f"{req.protocol.context} contexts are cut from the ground truth, and dataset "
+            f"{dataset.name!r} has none",
             "use --protocol sparse: its contexts are drawn from the scans themselves",
         )
     if req.protocol.context_normals and not dataset.has_normals:
@@ -143,8 +144,9 @@ def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
             "drop --context-normals",
         )
     contexts = validate_contexts(req.contexts)
-    # Crop contexts come from the ground-truth points: checked per object before any cell.
-    bound = dataset.max_context_size() if req.protocol.context != "crop" else None
+    # Crop and depth contexts come from the ground-truth points: checked per object before any
+    # cell.
+    bound = dataset.max_context_size() if req.protocol.context == "sparse" else None
     if bound is not None and max(contexts) > bound:
         raise ShapebenchError(
             f"context size {max(contexts)} is larger than the {bound} surface points that dataset "

@@ -26,9 +26,9 @@ from shapebench.api.contexts import CONTEXTS_VERSION, ContextStore, contexts_dig
 from shapebench.api.dataset import Dataset, ObjectLoadError
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import Method
-from shapebench.api.metric import Metric
+from shapebench.api.metric import Metric, NotApplicable
 from shapebench.api.protocol import Protocol
-from shapebench.api.types import Completion, Context, ObjectData, ObjectRef
+from shapebench.api.types import Completion, Context, GroundTruthArray, ObjectData, ObjectRef
 from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.registry.variant import Variant
@@ -45,6 +45,9 @@ EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluation.pictures.PI
 TOP_REASONS = 10
 #: Per-object column prefix holding the error of a metric that raised on that object.
 METRIC_ERROR = "metric_error."
+#: Per-object column prefix holding why a metric does not apply to that object (the metric
+#: raised :class:`~shapebench.api.metric.NotApplicable`): not an error, and no value.
+NOT_APPLICABLE = "not_applicable."
 
 
 def _traceback(exc: BaseException) -> str:
@@ -70,6 +73,8 @@ class CellResult:
     tracebacks: dict[str, str] = field(default_factory=dict)
     #: Metric name -> the card its values follow (:meth:`MetricCard.as_tag`).
     cards: dict[str, str] = field(default_factory=dict)
+    #: (metric, reason, objects) for each metric that did not apply to some objects (new cells).
+    not_applicable: list[tuple[str, str, int]] = field(default_factory=list)
 
     def scale(self, metric: str) -> float:
         """The factor ``metric``'s values are shown with (its card's), 1 when unknown."""
@@ -185,6 +190,24 @@ def _first_line(error: object) -> str:
     return text.splitlines()[0][:200]
 
 
+def not_applicable(table: pd.DataFrame, metric: str) -> pd.Series:
+    """Per row of a per-object table, whether ``metric`` did not apply to that object."""
+    col = f"{NOT_APPLICABLE}{metric}"
+    if col not in table:
+        return pd.Series(False, index=table.index)
+    return table[col].notna() & (table[col].astype(str) != "")
+
+
+def not_applicable_reasons(table: pd.DataFrame) -> list[tuple[str, str, int]]:
+    """(metric, reason, objects) for every metric that did not apply to some object."""
+    out = []
+    for col in [c for c in table.columns if str(c).startswith(NOT_APPLICABLE)]:
+        reasons = table[col][not_applicable(table, str(col)[len(NOT_APPLICABLE) :])]
+        for reason, n in reasons.astype(str).value_counts().items():
+            out.append((str(col)[len(NOT_APPLICABLE) :], str(reason), int(n)))
+    return out
+
+
 def metric_errors(table: pd.DataFrame) -> list[str]:
     """The metrics that raised on some object of this per-object table."""
     return sorted(
@@ -197,16 +220,20 @@ def metric_errors(table: pd.DataFrame) -> list[str]:
 class ObjectCache:
     """Keeps recently loaded objects in memory across the cells of a run."""
 
-    def __init__(self, dataset: Dataset, capacity: int = 64) -> None:
+    def __init__(
+        self, dataset: Dataset, capacity: int = 64, need: frozenset[GroundTruthArray] = frozenset()
+    ) -> None:
         self.dataset = dataset
         self.capacity = capacity
+        #: Ground-truth arrays the run's metrics read, among those the dataset can build.
+        self.need = need & dataset.provides_ground_truth
         self._items: OrderedDict[str, ObjectData | ObjectLoadError] = OrderedDict()
 
     def get(self, ref: ObjectRef) -> ObjectData:
         item = self._items.get(ref.id)
         if item is None:
             try:
-                item = self.dataset.load(ref)
+                item = self.dataset.load(ref, self.need) if self.need else self.dataset.load(ref)
             except ObjectLoadError as exc:
                 item = exc
             self._items[ref.id] = item
@@ -232,10 +259,13 @@ def check_context_sizes(
     quiet: bool,
     label: str,
     protocol: Protocol | None = None,
+    store: ContextStore | None = None,
 ) -> None:
     """Load (and if needed preprocess) every object; refuse sizes some object cannot provide
-    (visible surface points; under ``--protocol crop`` the ground-truth points a crop leaves)."""
+    (visible surface points; under ``--protocol crop`` the ground-truth points a crop leaves,
+    under ``depth`` those the camera sees)."""
     crop = protocol is not None and protocol.context == "crop"
+    depth = protocol is not None and protocol.context == "depth"
     fewest: tuple[int, str] | None = None
     with _progress(len(refs), f"preparing {label}", quiet) as bar:
         for ref in refs:
@@ -243,6 +273,8 @@ def check_context_sizes(
                 data = cache.get(ref)
                 if crop:
                     n = len(data.gt_points) - int(protocol.crop_fraction * len(data.gt_points))
+                elif depth and store is not None:
+                    n = len(store.partial_points(data, protocol))
                 else:
                     n = len(data.surface_points)
                 if fewest is None or n < fewest[0]:
@@ -251,6 +283,13 @@ def check_context_sizes(
                 pass  # counted as a failure in every cell
             bar.update()
     if fewest is not None and max(sizes) > fewest[0]:
+        if depth:
+            raise ShapebenchError(
+                f"context size {max(sizes)} is larger than the {fewest[0]} ground-truth points "
+                f"object {fewest[1]!r} shows its depth camera ({label})",
+                f"use context sizes up to {fewest[0]}, or more ground-truth points "
+                "(-D gt_points=...)",
+            )
         if crop:
             raise ShapebenchError(
                 f"context size {max(sizes)} is larger than the {fewest[0]} ground-truth points "
@@ -291,15 +330,31 @@ def scaled(data: ObjectData, ctx: Context, completion: Completion, factor: float
         data,
         gt_points=data.gt_points * factor,
         surface_points=data.surface_points * factor,
+        extra={k: _scaled_extra(k, v, factor) for k, v in data.extra.items()},
         cache={},
     )
     sctx = replace(ctx, points=ctx.points * factor)
+    mesh = completion.mesh
+    if mesh is not None:
+        mesh = mesh.copy()
+        mesh.apply_scale(factor)
     scomp = Completion(
         points=(completion.points * factor).astype(np.float32),
+        mesh=mesh,
         samples=[s * factor for s in completion.samples] if completion.samples else None,
         info=completion.info,
     )
     return sdata, sctx, scomp
+
+
+def _scaled_extra(name: str, array: np.ndarray, factor: float) -> np.ndarray:
+    """A ground-truth array in the evaluation frame: its first three columns are coordinates;
+    normals and occupancy labels do not scale."""
+    if name not in {k.value for k in GroundTruthArray}:
+        return array
+    out = np.array(array, copy=True)
+    out[:, :3] *= factor
+    return out
 
 
 def score(
@@ -333,6 +388,10 @@ def score(
             value = float(metric.compute(scomp, sdata, sctx))
             if not math.isfinite(value):
                 raise ValueError(f"the metric returned {value}")
+        except NotApplicable as exc:  # no value, and no error: the reason is recorded
+            row[metric.name] = math.nan
+            row[f"{NOT_APPLICABLE}{metric.name}"] = str(exc) or "not applicable"
+            continue
         except Exception as exc:
             row[metric.name] = math.nan
             row[f"{METRIC_ERROR}{metric.name}"] = f"{type(exc).__name__}: {exc}"
@@ -379,9 +438,12 @@ def summarize(table: pd.DataFrame, metrics: list[Metric]) -> dict[str, float]:
     }
     for m in metrics:
         values = ok[m.name].to_numpy(dtype=float) if m.name in ok else np.array([])
-        values = values[np.isfinite(values)]  # NaN: the metric raised on that object
+        values = values[np.isfinite(values)]  # NaN: the metric raised or did not apply
+        na = not_applicable(ok, m.name)
+        if na.any():
+            out[f"{m.name}.not_applicable"] = float(na.sum())
         if f"{METRIC_ERROR}{m.name}" in ok:
-            out[f"{m.name}.errors"] = float(len(ok) - len(values))
+            out[f"{m.name}.errors"] = float(len(ok) - len(values) - int(na.sum()))
         if len(values):
             out[f"{m.name}.mean"] = float(values.mean())
             out[f"{m.name}.std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
@@ -425,7 +487,8 @@ class Runner:
     def _run_plan(self, plan: RunPlan, make_method: Callable[[], Method]) -> list[CellResult]:
         method: Method | None = None
         results: list[CellResult] = []
-        cache = ObjectCache(plan.dataset)
+        need = frozenset().union(*(getattr(m, "needs", frozenset()) for m in plan.metrics))
+        cache = ObjectCache(plan.dataset, need=need)
         store = ContextStore(plan.dataset.cache_root, plan.dataset.data_fingerprint())
         for split in plan.splits:
             refs = plan.dataset.objects(split)
@@ -452,6 +515,7 @@ class Runner:
                 plan.quiet,
                 f"{plan.dataset.name}/{split}",
                 plan.protocol,
+                store,
             )
             if method is None:
                 method = make_method()
@@ -707,6 +771,7 @@ class Runner:
             uri,
             {r: tb for r, _, tb in errors if tb},
             cfg["metrics"],
+            not_applicable_reasons(table),
         )
 
     def _check_gt_points(self, plan: RunPlan, table: pd.DataFrame) -> int:

@@ -18,3 +18,6 @@ def shapebench_register_metrics(register):
     register("emd", "shapebench.metrics.emd:EMD")
     register("dcd", "shapebench.metrics.dcd:DCD")
     register("fidelity", "shapebench.metrics.fidelity:Fidelity")
+    # Surface metrics of ConvONet: they need the completion's mesh (implicit methods).
+    register("normal-consistency", "shapebench.metrics.surface:NormalConsistency")
+    register("iou", "shapebench.metrics.surface:IoU")

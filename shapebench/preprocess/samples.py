@@ -1,5 +1,6 @@
-"""Training samples produced from a normalised mesh: SDF samples, occupancy samples and complete
-point clouds.
+"""Samples produced from a normalised mesh: for training, SDF samples, occupancy samples and
+complete point clouds; for metrics that need more than ground-truth points, oriented points
+(normal consistency) and uniform occupancy queries (IoU).
 
 SDF samples follow DeepSDF's ``PreprocessMesh`` procedure: 47/50 of the points are surface
 samples perturbed with Gaussian noise of variance 0.005 and 0.0005 (one each), 3/50 are uniform in
@@ -15,11 +16,27 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from shapebench.geometry.containment import inside
 from shapebench.geometry.nearest import kdtree
 from shapebench.geometry.sampling import sample_surface
 
 NEAR_VARIANCES = (0.005, 0.0005)
 VOTE_NEIGHBOURS = 11
+
+
+#: Uniform occupancy queries per object for volumetric IoU (ConvONet's ``points.npz``: 100k).
+IOU_POINTS = 100_000
+#: Half the side of the box IoU queries fill: the unit sphere padded by 10 %, as OccNet pads its
+#: unit cube.
+IOU_BOUND = 1.1
+
+
+def oriented_points(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``(n, 6)``: ``n`` points area-weighted over the surface and the unit normals of their
+    faces (ConvONet's evaluation point cloud, for normal consistency)."""
+    pts, face = sample_surface(mesh.vertices, mesh.faces, n, rng)
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)[face]
+    return np.concatenate([pts, normals], axis=1).astype(np.float32)
 
 
 def complete_points(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -58,28 +75,8 @@ def sdf_samples(
     return np.concatenate([points, sdf[:, None]], axis=1)[keep].astype(np.float32)
 
 
-def inside(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Whether each point is inside the mesh.
-
-    A closed, consistently wound mesh uses trimesh's ray test directly. Meshes with holes or
-    flipped faces (scans, ShapeNet) get the majority vote of the ray-crossing parity along three
-    fixed directions, which is robust to a small hole pierced by one of the rays.
-    """
-    if mesh.is_watertight and mesh.is_winding_consistent:
-        return mesh.contains(points)
-    directions = np.array([[1.0, 0.3, 0.1], [-0.2, 1.0, 0.4], [0.3, -0.1, -1.0]])
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    votes = np.zeros(len(points), dtype=int)
-    for d in directions:
-        ray_dirs = np.broadcast_to(d, points.shape)
-        _, index_ray, _ = mesh.ray.intersects_location(points, ray_dirs, multiple_hits=True)
-        crossings = np.bincount(index_ray, minlength=len(points))
-        votes += crossings % 2
-    return votes >= 2
-
-
 def occupancy_samples(
-    mesh: trimesh.Trimesh, n: int, rng: np.random.Generator, bound: float = 1.1
+    mesh: trimesh.Trimesh, n: int, rng: np.random.Generator, bound: float = IOU_BOUND
 ) -> np.ndarray:
     """``(n, 4)`` rows of x, y, z, occupancy (1 inside) for points uniform in [-bound, bound]^3.
 

@@ -1090,11 +1090,31 @@ def _metric_object(env: CheckEnv) -> Any:
         return ObjectData(ObjectRef("sphere/0", "sphere"), v, v, v.copy())
 
 
-def _score(metric: Any, data: Any, points: Any) -> float:
+def _surface_object(metric: Any) -> Any:
+    """For a metric that reads ground-truth arrays (``needs``): a sphere's mesh, with those
+    arrays built by the code datasets use, and the mesh itself (``ObjectData.cache["mesh"]``)."""
+    import numpy as np
+    import trimesh
+
+    from shapebench.api.types import GroundTruthArray, ObjectData, ObjectRef
+    from shapebench.preprocess.samples import IOU_POINTS, occupancy_samples, oriented_points
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.8)
+    rng = np.random.default_rng(0)
+    gt = oriented_points(mesh, 4000, rng)
+    extra = {GroundTruthArray.ORIENTED_POINTS.value: gt}
+    if GroundTruthArray.OCCUPANCY in metric.needs:
+        extra[GroundTruthArray.OCCUPANCY.value] = occupancy_samples(mesh, IOU_POINTS // 10, rng)
+    data = ObjectData(ObjectRef("sphere/0", "sphere"), gt[:, :3], gt[:, 3:], gt[:, :3], extra)
+    data.cache["check.mesh"] = mesh
+    return data
+
+
+def _score(metric: Any, data: Any, points: Any, mesh: Any = None) -> float:
     from shapebench.api.types import Completion, Context
 
     context = Context(data.ref, data.surface_points[:CONTEXT_SIZE], None, 0)
-    value = metric.compute(Completion(points), data, context)
+    value = metric.compute(Completion(points, mesh=mesh), data, context)
     try:
         value = float(value)
     except (TypeError, ValueError) as exc:
@@ -1107,12 +1127,17 @@ def _score(metric: Any, data: Any, points: Any) -> float:
 def _identical(metric: Any, env: CheckEnv) -> tuple[str, float]:
     import numpy as np
 
-    data = _metric_object(env)
+    mesh = None
+    if getattr(metric, "needs", None):  # a surface metric: a mesh and its ground-truth arrays
+        data = _surface_object(metric)
+        mesh = data.cache["check.mesh"]
+    else:
+        data = _metric_object(env)
     prediction, what = data.gt_points.copy(), "identical to the ground truth"
     if not getattr(metric, "needs_ground_truth", True):  # input-referenced (fidelity)
         prediction = np.concatenate([prediction, data.surface_points[:CONTEXT_SIZE]])
         what = "holding its context points (the metric reads the input, not the ground truth)"
-    value = _score(metric, data, prediction)
+    value = _score(metric, data, prediction, mesh)
     if not metric.higher_is_better and abs(value) > 1e-9:
         raise CheckFailed(f"{value:.3g} on a prediction {what}: expected 0")
     return f"{value:g} on a prediction {what}", (value, data)
@@ -1125,7 +1150,12 @@ def _different(metric: Any, env: CheckEnv, best: tuple[float, Any] | None) -> st
     # Shrunk and shifted: every point moves, in both directions of a Chamfer distance. The same
     # ObjectData as above, as in a run, where its cache serves every completion of the object.
     moved = (data.gt_points * 0.7 + 0.05).astype("float32")
-    value = _score(metric, data, moved)
+    mesh = data.cache.get("check.mesh")
+    if mesh is not None:
+        mesh = mesh.copy()
+        mesh.apply_scale(0.7)
+        mesh.apply_translation([0.05, 0.05, 0.05])
+    value = _score(metric, data, moved, mesh)
     if metric.higher_is_better and not value < identical:
         raise CheckFailed(
             f"{value:.3g} on a different prediction, not below the {identical:g} "

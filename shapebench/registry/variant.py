@@ -85,6 +85,8 @@ def make_variant(
         overrides["+normals"] = True
     if protocol.context == "crop":
         overrides["crop"] = protocol.crop_fraction
+    if protocol.context == "depth":
+        overrides["protocol"] = "depth"
     if protocol.context_noise:
         overrides["noise"] = protocol.context_noise
     if weights == "local":
