@@ -26,7 +26,15 @@ from shapebench_shapenet.dataset import ShapeNetDataset, ShapeNetOptions  # noqa
 
 from shapebench.api.dataset import ObjectLoadError  # noqa: E402
 from shapebench.api.errors import ConfigError, DataNotFoundError  # noqa: E402
-from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision  # noqa: E402
+from shapebench.api.types import (  # noqa: E402
+    NOVEL,
+    TRAIN,
+    TRAINED,
+    VALIDATION,
+    Category,
+    ObjectRef,
+    Supervision,
+)
 
 CHAIR, PLANE = "03001627", "02691156"  # trained categories of the paper
 BUS, BENCH = "02924116", "02828884"  # novel categories of the paper
@@ -109,8 +117,17 @@ def test_v1_tree_gives_the_papers_categories_and_a_deterministic_split(tmp_path)
     ds = shapenet(root, tmp_path / "cache")
     assert ds.categories() == [Category("Chair", TRAINED), Category("Bus", NOVEL)]
     train, test, novel = ds.objects(TRAIN), ds.objects(TRAINED), ds.objects(NOVEL)
-    assert {r.category for r in train + test} == {"Chair"} and len(train) + len(test) == 5
+    # ShapeNet ships no validation split: 2 training models of each trained category (the
+    # default) are kept apart for choosing options, and leave training.
+    validation = ds.objects(VALIDATION)
+    assert ds.validation_splits == (VALIDATION,)
+    assert {r.category for r in train + test + validation} == {"Chair"}
+    assert len(train) + len(test) + len(validation) == 5 and len(validation) == 2
     assert len(test) == 1 and not {r.id for r in train} & {r.id for r in test}
+    assert not {r.id for r in validation} & {r.id for r in train + test}
+    everything = shapenet(root, tmp_path / "cache", validation_per_category=0)
+    assert {r.id for r in everything.objects(TRAIN)} == {r.id for r in train + validation}
+    assert everything.objects(VALIDATION) == []
     assert [r.category for r in novel] == ["Bus"] and len(novel) == 1  # 20% of 3 models
     assert all(r.id.startswith(f"{CHAIR}/") for r in train + test)
     again = shapenet(root, tmp_path / "other-cache")
@@ -157,7 +174,8 @@ def test_split_files_and_messy_meshes_fail_alone(tmp_path):
     (splits / "test.txt").write_text("# ids\n" + "\n".join(test_ids) + f"\n{CHAIR}/gone\n")
     deepsdf = {"ShapeNetV1": {CHAIR: ["chair1", "chair2"], BUS: ["bus1"]}}
     (splits / "train.json").write_text(json.dumps(deepsdf))
-    ds = shapenet(root, tmp_path / "cache", split_dir=str(splits))
+    # The split files' training models, all of them (no validation split carved from them).
+    ds = shapenet(root, tmp_path / "cache", split_dir=str(splits), validation_per_category=0)
     with pytest.warns(UserWarning, match="1 model"):
         trained = ds.objects(TRAINED)
     assert [r.id for r in trained] == [f"{CHAIR}/chair-broken", f"{CHAIR}/chair0"]

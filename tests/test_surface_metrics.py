@@ -188,6 +188,9 @@ def test_mesh_metrics_are_na_for_points_only_rows_in_the_cli_and_the_table(
     assert res.returncode == 0, res.stderr
     assert "iou: not applicable to" in res.stdout and "points only, with no mesh" in res.stdout
     assert " n/a " in res.stdout
+    # Depth runs that computed the default metrics only: their table is skipped, in one line.
+    res = shapebench(*base, "-m", "gauss", "--protocol", "depth", "-q")
+    assert res.returncode == 0, res.stderr
     out = tmp_path / "boards"
     res = shapebench(
         "leaderboard",
@@ -201,11 +204,24 @@ def test_mesh_metrics_are_na_for_points_only_rows_in_the_cli_and_the_table(
         str(out),
     )
     assert res.returncode == 0, res.stdout + res.stderr
+    assert "skipped: no run of synthetic-trained with depth contexts recorded metric 'iou'" in (
+        res.stderr
+    )
     page = (out / "synthetic-trained.md").read_text()
     assert "| n/a |" in page
+    assert "**Choices**: options (profiles, method defaults, the ladder) are chosen on the " in page
     assert "n/a: iou does not apply to `gauss`: the completion is points only" in page
     import pandas as pd
 
     csv = pd.read_csv(out / "synthetic-trained.csv")
     assert csv["kind"].tolist() == ["not_applicable"]
     assert csv["not_applicable"].iloc[0].startswith("the completion is points only")
+
+
+def test_the_header_says_which_split_options_are_chosen_on() -> None:
+    from shapebench.boards.leaderboard import choices_text
+
+    assert "chosen on the `validation` split of `shapenet`" in choices_text("shapenet", "trained")
+    assert "for choices, not reports" in choices_text("synthetic", "validation")
+    assert "`meshes` has no validation split" in choices_text("meshes", "novel")
+    assert "not installed here" in choices_text("no-such-dataset", "trained")

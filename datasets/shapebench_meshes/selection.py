@@ -43,6 +43,25 @@ def max_test_option() -> Any:
     )
 
 
+def validation_option() -> Any:
+    """The ``validation_per_category`` field of a dataset whose copy ships no validation split:
+    that many training models per trained category, picked by the seed, form the ``validation``
+    split (for choosing options) and leave training (it chooses objects: ``selection``)."""
+    return field(
+        default=2,
+        metadata={
+            "help": "training models per trained category kept apart as the validation split",
+            "selection": True,
+        },
+    )
+
+
+def carve_validation(ids: list[str], count: int, seed: int, salt: str) -> tuple[list, list]:
+    """(training ids, validation ids): ``count`` of ``ids`` picked by hash rank, both sorted."""
+    validation = sorted(hash_order(ids, seed, salt)[:count])
+    return sorted(set(ids) - set(validation)), validation
+
+
 def capped(ids: Iterable[str], cap: int, seed: int, salt: str) -> list[str]:
     """At most ``cap`` of ``ids``, the first by hash rank, sorted: a smaller cap picks a subset
     of a larger one, so the training sets of a data-scaling sweep are nested."""

@@ -32,7 +32,14 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from shapebench_meshes.selection import capped, hash_order, max_test_option, max_train_option
+from shapebench_meshes.selection import (
+    capped,
+    carve_validation,
+    hash_order,
+    max_test_option,
+    max_train_option,
+    validation_option,
+)
 from shapebench_shapenet.catalog import by_synset
 
 from shapebench.api.dataset import Dataset, ObjectLoadError
@@ -73,13 +80,7 @@ class ShapeNet55Options:
         },
     )
     max_test_per_category: int = max_test_option()
-    validation_per_category: int = field(
-        default=2,
-        metadata={
-            "help": "training models per trained category kept apart as the validation split",
-            "selection": True,
-        },
-    )
+    validation_per_category: int = validation_option()
     max_train_per_category: int = max_train_option()
     seed: int = field(default=0, metadata={"help": "seed of the picks (validation, caps)"})
 
@@ -151,9 +152,9 @@ class ShapeNet55Dataset(Dataset):
         for category in sorted(by_category):
             lists = by_category[category]
             train = {r.id: r for r in lists.get(TRAIN, [])}
-            order = hash_order(train, o.seed, "shapenet55-validation")
-            validation = sorted(order[: o.validation_per_category])
-            kept = sorted(set(train) - set(validation))
+            kept, validation = carve_validation(
+                list(train), o.validation_per_category, o.seed, "shapenet55-validation"
+            )
             if o.max_train_per_category:
                 kept = capped(kept, o.max_train_per_category, o.seed, "shapenet55-train-cap")
             table[TRAIN] += [train[i] for i in kept]

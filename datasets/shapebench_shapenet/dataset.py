@@ -5,7 +5,9 @@ Categories and their trained/novel split are the paper's (Tables 1 and 2, from
 test models either by hash of (seed, model id) with ``test_fraction`` of them for testing, or by
 the user's split files (``split_dir``, see :mod:`shapebench_shapenet.splits`). Novel categories
 are split the same way and only their test models are evaluated, so a category's test set does
-not depend on whether it is trained or novel.
+not depend on whether it is trained or novel. ShapeNet ships no validation split: the
+``validation`` split is ``validation_per_category`` training models of each trained category,
+picked by the seed, which then leave training (options are chosen on them, never on test models).
 
 Meshes are read per model from whichever layout the folder has (v1 ``model.obj`` or v2
 ``models/model_normalized.obj``) and preprocessed like every mesh dataset (the paper's §4.1):
@@ -24,15 +26,25 @@ from typing import ClassVar
 from shapebench_meshes.loading import load_mesh_file
 from shapebench_meshes.selection import (
     capped,
+    carve_validation,
     hash_order,
     max_test_option,
     max_train_option,
     split_ids,
+    validation_option,
 )
 
 from shapebench.api.dataset import MeshDataset, MeshOptions, ObjectLoadError
 from shapebench.api.errors import ConfigError
-from shapebench.api.types import NOVEL, TRAIN, TRAINED, Category, ObjectRef, Supervision
+from shapebench.api.types import (
+    NOVEL,
+    TRAIN,
+    TRAINED,
+    VALIDATION,
+    Category,
+    ObjectRef,
+    Supervision,
+)
 from shapebench.hashing import stable_hash
 from shapebench_shapenet import catalog, layout
 from shapebench_shapenet.splits import read_split_dir
@@ -65,6 +77,7 @@ class ShapeNetOptions(MeshOptions):
     )
     max_test_per_category: int = max_test_option()
     max_train_per_category: int = max_train_option()
+    validation_per_category: int = validation_option()
 
 
 class ShapeNetDataset(MeshDataset):
@@ -79,6 +92,7 @@ class ShapeNetDataset(MeshDataset):
     )
     needs_data_root = True
     obtain_hint: ClassVar[str] = layout.OBTAIN
+    validation_splits = (VALIDATION,)
 
     def __init__(self, options, cache_dir, data_root=None) -> None:
         super().__init__(options, cache_dir, data_root)
@@ -89,6 +103,11 @@ class ShapeNetDataset(MeshDataset):
             )
         if options.max_test_per_category < 0:
             raise ConfigError("max_test_per_category must be >= 0 (0 means no limit)")
+        if options.validation_per_category < 0:
+            raise ConfigError(
+                "validation_per_category must be >= 0",
+                "e.g. -D validation_per_category=2 (0: no validation split)",
+            )
         self.selected = catalog.resolve(list(options.categories))
         self._models: dict[str, list[layout.Model]] | None = None
         self._table: dict[str, list[ObjectRef]] | None = None
@@ -128,8 +147,8 @@ class ShapeNetDataset(MeshDataset):
         return [Category(c.name, c.split) for c in self.selected if c.synset in self.models]
 
     def objects(self, split: str) -> list[ObjectRef]:
-        if split not in (TRAIN, TRAINED, NOVEL):
-            raise ValueError(f"unknown split {split!r}; use train, trained or novel")
+        if split not in (TRAIN, TRAINED, NOVEL, VALIDATION):
+            raise ValueError(f"unknown split {split!r}; use train, trained, novel or validation")
         if self._table is None:
             self._table = self._split_table()
         return list(self._table[split])
@@ -137,7 +156,7 @@ class ShapeNetDataset(MeshDataset):
     def _split_table(self) -> dict[str, list[ObjectRef]]:
         o = self.options
         user = self.user_splits
-        table: dict[str, list[ObjectRef]] = {TRAIN: [], TRAINED: [], NOVEL: []}
+        table: dict[str, list[ObjectRef]] = {TRAIN: [], TRAINED: [], NOVEL: [], VALIDATION: []}
         listed_missing = 0
         for cat in self.selected:
             ids = [m.id for m in self.models.get(cat.synset, [])]
@@ -152,10 +171,16 @@ class ShapeNetDataset(MeshDataset):
                 test, train = split_ids(ids, o.test_fraction, o.seed, "shapenet")
             if o.max_test_per_category:
                 test = sorted(hash_order(test, o.seed, "shapenet-cap")[: o.max_test_per_category])
+            # Validation models leave training before the cap, so a capped training set never
+            # holds them.
+            train, validation = carve_validation(
+                train, o.validation_per_category, o.seed, "shapenet-validation"
+            )
             if o.max_train_per_category:
                 train = capped(train, o.max_train_per_category, o.seed, "shapenet-train-cap")
             if cat.split == TRAINED:
                 table[TRAIN] += [ObjectRef(i, cat.name) for i in train]
+                table[VALIDATION] += [ObjectRef(i, cat.name) for i in validation]
                 table[TRAINED] += [ObjectRef(i, cat.name) for i in test]
             else:  # training models of novel categories are never used
                 table[NOVEL] += [ObjectRef(i, cat.name) for i in test]
@@ -168,6 +193,11 @@ class ShapeNetDataset(MeshDataset):
         return table
 
     def selection_notes(self, split: str) -> list[str]:
+        if split == VALIDATION:
+            return [
+                f"{self.options.validation_per_category} training models per category kept "
+                "apart for choosing options (-D validation_per_category=N)"
+            ]
         if split not in (TRAINED, NOVEL):
             return []
         if self._table is None:

@@ -271,6 +271,10 @@ def _rows(runs: pd.DataFrame) -> list[Row]:
     return sorted(rows, key=rank)
 
 
+class MetricNotRecorded(ShapebenchError):
+    """No run of a table computed the metric asked for."""
+
+
 def build_board(
     tracker: Tracker,
     dataset: str,
@@ -314,8 +318,10 @@ def build_board(
                 )
     card_col = card_column(metric)
     if card_col not in runs or runs[card_col].isna().all():
-        raise ShapebenchError(
-            f"no run of {dataset}-{split} recorded metric {metric!r}", "pick another with --metric"
+        where = "" if protocol == DEFAULT_CONTEXT else f" with {protocol} contexts"
+        raise MetricNotRecorded(
+            f"no run of {dataset}-{split}{where} recorded metric {metric!r}",
+            "pick another with --metric",
         )
     # Cards are compared in their current tag form: a tag written by an older shapebench (the
     # same card in the old spelling) groups with today's.
@@ -521,6 +527,8 @@ def render_markdown(
         f"**Metric card**: {_card_text(board.card)}.",
         "",
         f"**Protocol**: {board.protocol}; distances in the {FRAMES[board.frame][1]}.",
+        "",
+        f"**Choices**: {choices_text(board.dataset, board.split)}",
         "",
         f"Raw: mean ± std over {samples} of {board.metric}{' ' + scale_txt if scale_txt else ''}"
         " (every object weighs the same; the mean of the per-category means, PCN's 'overall', "
@@ -765,6 +773,32 @@ def board_path(
     return out_dir / f"{dataset}-{split}{suffix}.md"
 
 
+def choices_text(dataset: str, split: str) -> str:
+    """Which split options are chosen on (the leaderboard header's "Choices" line): the
+    dataset's validation split, disjoint from the test objects a table reports."""
+    from shapebench.registry.discovery import get_registry
+
+    try:
+        validation = get_registry().load("dataset", dataset).validation_splits
+    except Exception:  # not installed here (a merged store): say what the table cannot know
+        return f"dataset {dataset!r} is not installed here, so its validation split is unknown."
+    if split in validation:
+        return (
+            f"this is `{dataset}`'s validation split, kept apart from the test objects for "
+            "choosing options (profiles, method defaults, the ladder): for choices, not reports."
+        )
+    if not validation:
+        return (
+            f"`{dataset}` has no validation split; options (profiles, method defaults) are the "
+            "ones chosen elsewhere, never on these test objects."
+        )
+    names = ", ".join(f"`{v}`" for v in validation)
+    return (
+        f"options (profiles, method defaults, the ladder) are chosen on the {names} split of "
+        f"`{dataset}`, disjoint from these test objects, which are never used to choose."
+    )
+
+
 def declared_splits(dataset: str) -> tuple[str, ...]:
     """The evaluation splits in the order ``dataset`` declares them (trained before novel, as
     the paper's Table 1 comes before Table 2); the built-in order when the dataset is not
@@ -825,10 +859,20 @@ def build_leaderboards(
             [protocol] if protocol is not None else protocols_with_runs(tracker, dataset, split)
         )
     ]
+    skipped: list[MetricNotRecorded] = []
     for split, one in tables:
-        board = build_board(
-            tracker, dataset, split, reference, metric, frame, data_version, all_variants, one
-        )
+        try:
+            board = build_board(
+                tracker, dataset, split, reference, metric, frame, data_version, all_variants, one
+            )
+        except MetricNotRecorded as exc:
+            # Among several tables, one whose runs never computed the metric is skipped (said
+            # in one line): --metric iou should not fail because crop runs computed Chamfer only.
+            if len(tables) == 1:
+                raise
+            skipped.append(exc)
+            print(f"skipped: {exc.message}", file=sys.stderr)
+            continue
         if board is None:
             continue
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -843,6 +887,8 @@ def build_leaderboards(
         tidy_csv(board).to_csv(csv, index=False)
         log_board_artifacts(tracker, board, [md, csv, *figures])
         written += [md, csv, *figures]
+    if not written and skipped:
+        raise skipped[0]
     if not written:
         raise ShapebenchError(
             f"no finished runs of dataset {dataset!r}"
