@@ -194,6 +194,9 @@ def test_crop_and_noise_runs_are_rows_and_tables_of_their_own(shapebench, tmp_pa
     res = shapebench(*base, "--contexts", "50", "--protocol", "depth")
     assert res.returncode == 0, res.stderr
     assert "gauss[protocol=depth] on synthetic/trained" in res.stdout
+    res = shapebench(*base, "--contexts", "1900", "--protocol", "depth")
+    assert res.returncode == 2 and "ground-truth points object" in res.stderr
+    assert "shows its depth camera" in res.stderr
     # Nothing recomputed by asking again: the keys are stable.
     res = shapebench(*base, "--contexts", "50,512", "--protocol", "crop", "--crop-fraction", "0.5")
     assert res.stdout.count("cached") == 2, res.stdout
