@@ -1,0 +1,101 @@
+"""PoinTr: a transformer point-completion method (Yu et al., "PoinTr: Diverse Point Cloud
+Completion with Geometry-Aware Transformers", ICCV 2021; official code yuxumin/PoinTr, the
+PCN configuration ``cfgs/PCN_models/PoinTr.yaml``), the family (AdaPoinTr, ...) that leads the
+completion tables since 2021.
+
+Network in :mod:`shapebench_pointr.network`: point proxies from a DGCNN grouper, a
+geometry-aware transformer encoder-decoder that predicts the missing proxies' centres and
+features, and a FoldingNet head folding 64 points around each; the input is appended to the
+output. Loss: the halved Chamfer-L1 (PoinTr's ``ChamferDistanceL1``) of the coarse cloud plus that
+of the dense one, 1:1. Optimiser: AdamW, lr 5e-4, weight decay 5e-4 except on biases and norm
+weights, the lr multiplied by 0.9 every ``lr_decay_steps`` (official: every 21 epochs) down to
+0.02 of it, gradient norm clipped at 10.
+
+As PCN here, it is trained with the benchmark's context sizes as inputs (each batch draws one):
+the field trains and tests on 2,048 input points; a 50-point context then gives 50 proxies
+instead of 128 (the grouper samples at most as many centres as there are points). The output
+has ``num_query x fold_step^2`` folded points plus the context (official PCN: 224 x 64 + 2,048 =
+16,384); its size is the method's, whatever the ground truth's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from shapebench.api.options import option, steps_option
+from shapebench.api.types import Completion, Context, Supervision
+from shapebench.train.lightning_method import LightningMethod
+
+
+@dataclass(frozen=True)
+class PoinTrOptions:
+    dim: int = option(384, "transformer width (384)")
+    heads: int = option(6, "attention heads (6)")
+    encoder_depth: int = option(6, "encoder blocks (6)")
+    decoder_depth: int = option(8, "decoder blocks (8)")
+    num_query: int = option(224, "predicted proxies (PCN: 224; ShapeNet-55: 96)")
+    fold_step: int = option(8, "folding grid per axis: fold_step^2 points per proxy (8)")
+    global_dim: int = option(1024, "global feature size (1024)")
+    proxies: int = option(128, "point proxies from the input, at most (128)")
+    target_points: int = option(16384, "target points per object (PCN: 16384)")
+    surface_points: int = option(1000, "largest context size drawn")
+    context_sizes: tuple[int, ...] = option(
+        (50, 100, 300, 1000), "context sizes the batches draw from"
+    )
+    epochs: int = option(300, "training epochs (PCN: 300)")
+    steps: int = steps_option()
+    batch_shapes: int = option(48, "objects per batch (PCN: 48)")
+    lr: float = option(5e-4, "AdamW learning rate (5e-4)")
+    weight_decay: float = option(5e-4, "AdamW weight decay, not on biases and norms (5e-4)")
+    lr_decay: float = option(0.9, "lr factor every lr_decay_steps (0.9)")
+    lr_decay_steps: int = option(
+        12_700, "steps between lr decays (official: 21 epochs of PCN, 604 steps each)"
+    )
+    lr_floor: float = option(0.02, "lowest lr factor (0.02)")
+    grad_clip: float = option(10.0, "gradient norm clip (10)")
+
+
+class PoinTr(LightningMethod):
+    display_name = "PoinTr"
+    description = "point proxies + geometry-aware transformer + folding head (ICCV 2021)"
+    supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
+    Options = PoinTrOptions
+    module_path = "shapebench_pointr.module:PoinTrModule"
+    #: Tiny options for ``shapebench check``: a small network, one epoch.
+    check_options = {
+        "dim": 16,
+        "heads": 2,
+        "encoder_depth": 1,
+        "decoder_depth": 1,
+        "num_query": 8,
+        "fold_step": 2,
+        "global_dim": 32,
+        "proxies": 16,
+        "target_points": 256,
+        "epochs": 1,
+        "batch_shapes": 4,
+    }
+    batch_size = 16
+
+    def sample_sizes(self) -> dict[Supervision, int]:
+        o = self.options
+        return {
+            Supervision.SURFACE_POINTS: o.surface_points,
+            Supervision.COMPLETE_POINTS: o.target_points,
+        }
+
+    def encode(self, contexts: list[Context]) -> np.ndarray:
+        """The dense clouds, (B, num_query * fold_step^2 + k, 3)."""
+        import torch
+
+        from shapebench.implicit.completion import stack_contexts
+
+        pts, _ = stack_contexts(contexts, self.device)
+        with torch.no_grad():
+            _, fine = self.module.network(pts)
+        return fine.cpu().numpy().astype(np.float32)
+
+    def decode(self, code: np.ndarray, ctx: Context, n_points: int) -> Completion:
+        return Completion(points=code)  # the output as it is: its size is the method's

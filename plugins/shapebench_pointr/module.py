@@ -1,0 +1,77 @@
+"""PoinTr's LightningModule: k context points in, CD-L1 of the coarse and dense clouds."""
+
+from __future__ import annotations
+
+import torch
+from shapebench_pcn.losses import chamfer_l1_halved
+
+from shapebench.train.lightning_fit import step_generator
+from shapebench.train.lightning_module import OptionsModule
+from shapebench_pointr.method import PoinTrOptions
+from shapebench_pointr.network import PoinTrNetwork
+
+
+class PoinTrModule(OptionsModule):
+    Options = PoinTrOptions
+    options: PoinTrOptions
+
+    def __init__(self, options: PoinTrOptions | None = None, n_shapes: int = 0, **saved) -> None:
+        super().__init__(options, n_shapes, **saved)
+        o = self.options
+        self.network = PoinTrNetwork(
+            o.dim,
+            o.heads,
+            (o.encoder_depth, o.decoder_depth),
+            num_query=o.num_query,
+            fold_step=o.fold_step,
+            global_dim=o.global_dim,
+            proxies=o.proxies,
+        )
+
+    def losses(self, points: torch.Tensor, target: torch.Tensor) -> dict[str, torch.Tensor]:
+        coarse, fine = self.network(points)
+        return {
+            "coarse": chamfer_l1_halved(coarse, target).mean(),
+            "fine": chamfer_l1_halved(fine, target).mean(),
+        }
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        sizes = self.options.context_sizes
+        k = sizes[int(torch.randint(len(sizes), (1,), generator=step_generator(self)))]
+        terms = self.losses(batch["points"][:, :k], batch["complete"])
+        loss = terms["coarse"] + terms["fine"]
+        self.log_dict(
+            {
+                "train/loss": loss,
+                "train/coarse_cd": terms["coarse"],
+                "train/fine_cd": terms["fine"],
+            },
+            on_step=False,
+            on_epoch=True,
+            batch_size=len(batch["points"]),
+            sync_dist=True,
+        )
+        return loss
+
+    def configure_gradient_clipping(
+        self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None
+    ) -> None:
+        # The official gradient-norm clip, whatever the Trainer is given.
+        self.clip_gradients(optimizer, self.options.grad_clip, "norm")
+
+    def configure_optimizers(self):
+        o = self.options
+        decay, plain = [], []
+        for name, p in self.named_parameters():
+            (plain if p.ndim <= 1 or name.endswith(".bias") else decay).append(p)
+        opt = torch.optim.AdamW(
+            [
+                {"params": decay, "weight_decay": o.weight_decay},
+                {"params": plain, "weight_decay": 0},
+            ],
+            lr=o.lr,
+        )
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda step: max(o.lr_decay ** (step / o.lr_decay_steps), o.lr_floor)
+        )
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}

@@ -1,0 +1,95 @@
+"""PoinTr (issue 30): farthest-point sampling by hand, the grouper's proxies (capped by the
+context), the output layout (folded points around the predicted centres, then the input itself),
+the optimiser's groups and schedule, and a few steps that lower the loss."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from shapebench_pointr.method import PoinTrOptions
+from shapebench_pointr.module import PoinTrModule
+from shapebench_pointr.network import (
+    DGCNNGrouper,
+    Folding,
+    PoinTrNetwork,
+    farthest_point_sample,
+    gather_points,
+    knn,
+)
+
+TINY = dict(dim=16, heads=2, depth=(1, 1), num_query=4, fold_step=2, global_dim=32, proxies=8)
+
+
+def test_farthest_point_sample_by_hand() -> None:
+    # A unit square's corners and its centre, from index 0 (the official kernel's start): the
+    # opposite corner, then the nearer of the two others by index, then the last corner.
+    pts = torch.tensor([[[0.0, 0, 0], [0.5, 0.5, 0], [1.0, 0, 0], [0.0, 1, 0], [1.0, 1, 0]]])
+    assert farthest_point_sample(pts, 4)[0].tolist() == [0, 4, 2, 3]
+
+
+def test_gather_and_knn_by_hand() -> None:
+    values = torch.arange(12.0).view(1, 4, 3)
+    assert gather_points(values, torch.tensor([[2, 0]]))[0].tolist() == [[6, 7, 8], [0, 1, 2]]
+    line = torch.tensor([[[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0]]])
+    assert knn(line[:, :1], line, 2)[0, 0].tolist() == [0, 1]
+
+
+def test_proxies_are_capped_by_the_context() -> None:
+    grouper = DGCNNGrouper(first=16, proxies=8)
+    centres, features = grouper(torch.randn(2, 50, 3))
+    assert centres.shape == (2, 8, 3) and features.shape == (2, 8, 128)
+    centres, _ = grouper(torch.randn(2, 5, 3))  # five points: five proxies
+    assert centres.shape == (2, 5, 3)
+
+
+def test_the_output_is_folded_points_then_the_input() -> None:
+    torch.manual_seed(0)
+    net = PoinTrNetwork(**TINY).eval()
+    context = torch.randn(3, 20, 3)
+    coarse, fine = net(context)
+    assert coarse.shape == (3, 4 + 4, 3)  # centres and an FPS of the input
+    assert fine.shape == (3, 4 * 2 * 2 + 20, 3)
+    assert torch.equal(fine[:, -20:], context)  # the observed points are kept exactly
+    grid = Folding(8, 3).grid
+    assert grid.shape == (2, 9) and grid.min() == -1 and grid.max() == 1
+
+
+def test_optimiser_groups_and_schedule() -> None:
+    module = PoinTrModule(PoinTrOptions(**{**TINY_OPTIONS, "lr_decay_steps": 10}))
+    setup = module.configure_optimizers()
+    decay, plain = setup["optimizer"].param_groups
+    assert decay["weight_decay"] == 5e-4 and plain["weight_decay"] == 0
+    assert all(p.ndim > 1 for p in decay["params"]) and all(p.ndim <= 1 for p in plain["params"])
+    schedule = setup["lr_scheduler"]["scheduler"].lr_lambdas[0]
+    assert schedule(0) == 1.0 and abs(schedule(10) - 0.9) < 1e-12 and schedule(10**6) == 0.02
+
+
+TINY_OPTIONS = dict(
+    dim=16,
+    heads=2,
+    encoder_depth=1,
+    decoder_depth=1,
+    num_query=4,
+    fold_step=2,
+    global_dim=32,
+    proxies=8,
+)
+
+
+@pytest.mark.slow  # 60 optimiser steps
+def test_a_few_steps_lower_the_loss_on_one_shape() -> None:
+    torch.manual_seed(0)
+    module = PoinTrModule(PoinTrOptions(**TINY_OPTIONS))
+    opt = torch.optim.Adam(module.parameters(), lr=3e-3)
+    target = torch.randn(1, 200, 3)
+    target = target / target.norm(dim=-1, keepdim=True)  # a sphere
+    context = target[:, :30]
+    first = None
+    for _ in range(60):
+        terms = module.losses(context, target)
+        loss = terms["coarse"] + terms["fine"]
+        first = loss.item() if first is None else first
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert loss.item() < 0.6 * first
