@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The committed crop tables (leaderboards/synthetic-*-crop-0_*.md): every installed method on
+# The committed crop tables (leaderboards/synthetic-*-crop-0_*.md): the default sweep's methods on
 # ShapeNet-55-style partial shapes at 2,048 context points, crops of 0.25, 0.5 and 0.75, then a
 # table per crop. Reference checkpoints are used where shipped; rerunning skips finished cells.
 set -euo pipefail

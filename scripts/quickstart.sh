@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Set everything up and run the main job: every installed method on the built-in synthetic
+# Set everything up and run the main job: the paper's methods on the built-in synthetic
 # benchmark at context sizes 50, 100, 300 and 1000, logged to the embedded MLflow store, then
 # the leaderboard tables and the HTML report. Rerunning skips finished cells.
 set -euo pipefail
