@@ -251,8 +251,8 @@ def test_every_builtin_passes(shapebench):
     assert "n = 64" in pcn["complete"]  # 16 coarse points x a 2 x 2 folding grid
     assert pcn["lightning"] == "PASS: does not import lightning.pytorch"
     # The first trainable method imported Lightning: under the one namespace.
-    deepsdf = _status(res.stdout, "method deepsdf")
-    assert deepsdf["lightning"] == "PASS: uses pytorch_lightning, not lightning.pytorch"
+    convonet = _status(res.stdout, "method convonet")
+    assert convonet["lightning"] == "PASS: uses pytorch_lightning, not lightning.pytorch"
     # Datasets read from a local copy skip their data checks without --data-root.
     assert _status(res.stdout, "dataset shapenet")["load"].startswith("SKIP: reads a local copy")
 
