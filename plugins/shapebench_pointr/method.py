@@ -63,6 +63,8 @@ class PoinTr(LightningMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PoinTrOptions
     module_path = "shapebench_pointr.module:PoinTrModule"
+    #: PCN's halved Chamfer is the loss: its package is part of the keys.
+    code_modules = (*LightningMethod.code_modules, "shapebench_pcn.losses")
     #: Tiny options for ``shapebench check``: a small network, one epoch.
     check_options = {
         "dim": 16,

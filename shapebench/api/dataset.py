@@ -270,26 +270,22 @@ class MeshDataset(Dataset):
 
     def _extra(self, ref: ObjectRef, kind: Supervision) -> np.ndarray:
         """A training array, built from the normalised mesh on first use and cached on its own."""
-        name = _EXTRA_ARRAYS[kind]
-        path = self.training_cache_root / (ref.id.replace("/", "__") + f".{name}.npz")
-        cached = _read_npz(path)
-        if cached is not None:
-            return cached[name]
         from shapebench.preprocess.samples import complete_points, occupancy_samples, sdf_samples
 
-        try:
-            unit = self._unit_mesh(ref)
-        except Exception as exc:
-            raise ObjectLoadError(f"cannot build {name}: {type(exc).__name__}: {exc}") from exc
-        rng = np.random.default_rng(stable_seed(name, self.training_data_fingerprint(), ref.id))
-        if kind is Supervision.SDF_SAMPLES:
-            array = sdf_samples(unit, self.options.sdf_samples, rng)
-        elif kind is Supervision.OCCUPANCY_SAMPLES:
-            array = occupancy_samples(unit, self.options.occupancy_samples, rng)
-        else:
-            array = complete_points(unit, self.options.complete_points, rng)
-        save_npz_atomic(path, {name: array})
-        return array
+        o = self.options
+        build = {
+            Supervision.SDF_SAMPLES: lambda unit, rng: sdf_samples(unit, o.sdf_samples, rng),
+            Supervision.OCCUPANCY_SAMPLES: lambda unit, rng: occupancy_samples(
+                unit, o.occupancy_samples, rng
+            ),
+            Supervision.COMPLETE_POINTS: lambda unit, rng: complete_points(
+                unit, o.complete_points, rng
+            ),
+        }[kind]
+        name = _EXTRA_ARRAYS[kind]
+        return self._mesh_array(
+            ref, name, self.training_cache_root, self.training_data_fingerprint(), build
+        )
 
     def _ground_truth(self, ref: ObjectRef, kind: GroundTruthArray) -> np.ndarray:
         """A ground-truth array for metrics, built from the normalised mesh on first use and
@@ -297,8 +293,22 @@ class MeshDataset(Dataset):
         every method, run and machine)."""
         from shapebench.preprocess.samples import IOU_POINTS, occupancy_samples, oriented_points
 
-        name = kind.value
-        path = self.cache_root / "ground-truth" / (ref.id.replace("/", "__") + f".{name}.npz")
+        if kind is GroundTruthArray.ORIENTED_POINTS:
+
+            def build(unit, rng):
+                return oriented_points(unit, self.options.gt_points, rng)
+        else:
+
+            def build(unit, rng):
+                return occupancy_samples(unit, IOU_POINTS, rng)
+
+        root = self.cache_root / "ground-truth"
+        return self._mesh_array(ref, kind.value, root, self.data_fingerprint(), build)
+
+    def _mesh_array(self, ref: ObjectRef, name: str, root: Path, fingerprint: str, build):
+        """The array ``name`` of one object, cached in ``root``; on first use ``build(unit mesh,
+        rng)`` makes it, the generator seeded by (name, ``fingerprint``, object)."""
+        path = root / (ref.id.replace("/", "__") + f".{name}.npz")
         cached = _read_npz(path)
         if cached is not None:
             return cached[name]
@@ -306,11 +316,8 @@ class MeshDataset(Dataset):
             unit = self._unit_mesh(ref)
         except Exception as exc:
             raise ObjectLoadError(f"cannot build {name}: {type(exc).__name__}: {exc}") from exc
-        rng = np.random.default_rng(stable_seed(name, self.data_fingerprint(), ref.id))
-        if kind is GroundTruthArray.ORIENTED_POINTS:
-            array = oriented_points(unit, self.options.gt_points, rng)
-        else:
-            array = occupancy_samples(unit, IOU_POINTS, rng)
+        rng = np.random.default_rng(stable_seed(name, fingerprint, ref.id))
+        array = build(unit, rng)
         save_npz_atomic(path, {name: array})
         return array
 
