@@ -81,7 +81,7 @@ DEFAULT_CONTEXT = "sparse"
 class Protocol:
     context_normals: bool = False
     frame: str = DEFAULT_FRAME
-    #: ``sparse`` or ``crop`` (see the module docstring).
+    #: ``sparse``, ``crop`` or ``depth`` (see the module docstring).
     context: str = DEFAULT_CONTEXT
     #: The share of the complete cloud a ``crop`` context removes (ShapeNet-55: 0.25, 0.5, 0.75).
     crop_fraction: float = 0.0

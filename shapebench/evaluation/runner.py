@@ -258,22 +258,19 @@ def check_context_sizes(
     sizes: list[int],
     quiet: bool,
     label: str,
-    protocol: Protocol | None = None,
-    store: ContextStore | None = None,
+    protocol: Protocol,
+    store: ContextStore,
 ) -> None:
     """Load (and if needed preprocess) every object; refuse sizes some object cannot provide
-    (visible surface points; under ``--protocol crop`` the ground-truth points a crop leaves,
-    under ``depth`` those the camera sees)."""
-    crop = protocol is not None and protocol.context == "crop"
-    depth = protocol is not None and protocol.context == "depth"
+    (visible surface points; under ``--protocol crop`` or ``depth`` the partial cloud the store
+    samples contexts from: what a crop leaves, what the camera sees)."""
+    partial = protocol.context in ("crop", "depth")
     fewest: tuple[int, str] | None = None
     with _progress(len(refs), f"preparing {label}", quiet) as bar:
         for ref in refs:
             try:
                 data = cache.get(ref)
-                if crop:
-                    n = len(data.gt_points) - int(protocol.crop_fraction * len(data.gt_points))
-                elif depth and store is not None:
+                if partial:
                     n = len(store.partial_points(data, protocol))
                 else:
                     n = len(data.surface_points)
@@ -282,27 +279,24 @@ def check_context_sizes(
             except ObjectLoadError:
                 pass  # counted as a failure in every cell
             bar.update()
-    if fewest is not None and max(sizes) > fewest[0]:
-        if depth:
-            raise ShapebenchError(
-                f"context size {max(sizes)} is larger than the {fewest[0]} ground-truth points "
-                f"object {fewest[1]!r} shows its depth camera ({label})",
-                f"use context sizes up to {fewest[0]}, or more ground-truth points "
-                "(-D gt_points=...)",
-            )
-        if crop:
-            raise ShapebenchError(
-                f"context size {max(sizes)} is larger than the {fewest[0]} ground-truth points "
-                f"a crop of {protocol.crop_fraction:g} leaves of object {fewest[1]!r} ({label})",
-                f"use context sizes up to {fewest[0]}, or more ground-truth points "
-                "(-D gt_points=...)",
-            )
+    if fewest is None or max(sizes) <= fewest[0]:
+        return
+    n, obj = fewest
+    if not partial:
         raise ShapebenchError(
-            f"context size {max(sizes)} is larger than the {fewest[0]} visible surface points of "
-            f"object {fewest[1]!r} ({label})",
-            f"use context sizes up to {fewest[0]}, or sample more surface points "
+            f"context size {max(sizes)} is larger than the {n} visible surface points of "
+            f"object {obj!r} ({label})",
+            f"use context sizes up to {n}, or sample more surface points "
             "(-D surface_candidates=...)",
         )
+    if protocol.context == "depth":
+        what = f"object {obj!r} shows its depth camera"
+    else:
+        what = f"a crop of {protocol.crop_fraction:g} leaves of object {obj!r}"
+    raise ShapebenchError(
+        f"context size {max(sizes)} is larger than the {n} ground-truth points {what} ({label})",
+        f"use context sizes up to {n}, or more ground-truth points (-D gt_points=...)",
+    )
 
 
 def _valid_points(completion: Any) -> str | None:

@@ -43,8 +43,26 @@ def _mesh(prediction: Completion):
 def _truth(ground_truth: ObjectData, kind: GroundTruthArray) -> np.ndarray:
     array = ground_truth.extra.get(kind.value)
     if array is None:
-        raise NotApplicable("the dataset's ground truth is points only, with no mesh")
+        raise NotApplicable(
+            f"the dataset gives no {kind.value!r} ground truth (its objects are points only, "
+            "with no mesh)"
+        )
     return array
+
+
+def _unitless_card(name: str, quantity: str, eval_points: int, **fields: str) -> MetricCard:
+    """The card of a metric whose values are not distances (no power, no scale, higher better)."""
+    return MetricCard(
+        metric=name,
+        power=0,
+        quantity=quantity,
+        halved=False,
+        scale=1.0,
+        frame=UNIT_SPHERE_FRAME,
+        eval_points=eval_points,
+        higher_is_better=True,
+        **fields,
+    )
 
 
 class NormalConsistency(Metric):
@@ -58,18 +76,13 @@ class NormalConsistency(Metric):
     needs = frozenset({GroundTruthArray.ORIENTED_POINTS})
 
     def card(self, eval_points: int) -> MetricCard:
-        return MetricCard(
-            metric=self.name,
-            power=0,
-            quantity="|cos| between the face normals of nearest neighbours (meshes only)",
+        return _unitless_card(
+            self.name,
+            "|cos| between the face normals of nearest neighbours (meshes only)",
+            eval_points,
             reduction="mean",
             direction="symmetric",
             combine="mean",
-            halved=False,
-            scale=1.0,
-            frame=UNIT_SPHERE_FRAME,
-            eval_points=eval_points,
-            higher_is_better=True,
         )
 
     def compute(self, prediction: Completion, ground_truth: ObjectData, context: Context) -> float:
@@ -100,20 +113,13 @@ class IoU(Metric):
     needs = frozenset({GroundTruthArray.OCCUPANCY})
 
     def card(self, eval_points: int) -> MetricCard:
-        return MetricCard(
-            metric=self.name,
-            power=0,
-            quantity=(
-                f"volumetric IoU of inside the meshes at points uniform in the box "
-                f"[-{IOU_BOUND:g}, {IOU_BOUND:g}]^3 of the unit-radius frame (inside by ray parity)"
-            ),
+        return _unitless_card(
+            self.name,
+            f"volumetric IoU of inside the meshes at points uniform in the box "
+            f"[-{IOU_BOUND:g}, {IOU_BOUND:g}]^3 of the unit-radius frame (inside by ray parity)",
+            IOU_POINTS,
             reduction="none",
             direction="none",
-            halved=False,
-            scale=1.0,
-            frame=UNIT_SPHERE_FRAME,
-            eval_points=IOU_POINTS,
-            higher_is_better=True,
         )
 
     def compute(self, prediction: Completion, ground_truth: ObjectData, context: Context) -> float:
