@@ -53,8 +53,8 @@ def test_data_scaling_sweep_is_a_cross_over_shared_test_objects(tmp_path):
     runs = pairs(spec, sweep_methods(spec))
     sizes = {ds.label: ds for ds in spec.datasets}
     assert list(sizes) == ["66-shapes", "220-shapes", "660-shapes", "2200-shapes"]
-    # Six methods at every size, and four budgets x 3 at the largest: 6 x 4 + 12 runs.
-    assert len(runs) == 6 * 4 + 12
+    # Ten methods at every size, and two longer budgets of each at the largest: 10 x 4 + 20 runs.
+    assert len(runs) == 10 * 4 + 20
     assert all(ds.label == "2200-shapes" for _, ds, _, m in runs if m.options)
 
     def resolved(ds):
@@ -68,8 +68,9 @@ def test_data_scaling_sweep_is_a_cross_over_shared_test_objects(tmp_path):
     for _, ds, _, m in runs:
         method = resolve_method(registry, m.name, settings, m.options)
         keys.add(checkpoint_key(apply_trainer(method, trainer), resolved(ds), trainer))
-    # msc-noopt shares msc's trainings: 5 families x (4 sizes + 2 budgets).
-    assert len(keys) == 5 * 6
+    # msc-noopt shares msc's trainings, msc-hier-noopt msc-hier's: 8 families x (4 sizes + 2
+    # budgets).
+    assert len(keys) == 8 * 6
     # The smallest size is the profile's: its runs use the default (shipped) trainings.
     msc = resolve_method(registry, "msc", settings, {})
     assert checkpoint_key(msc, resolved(sizes["66-shapes"]), trainer) == checkpoint_key(
