@@ -30,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-METHODS = ("igr", "deepsdf", "msc", "occnet", "pcn")
+METHODS = ("igr", "deepsdf", "msc", "occnet", "pcn", "convonet", "msc-hier", "pointr")
 
 
 def _batches(data, device):
