@@ -1,21 +1,26 @@
 """Train (or take) the reference checkpoints shapebench ships for the synthetic benchmark.
 
-    .venv/bin/python scripts/reference_checkpoints.py [--methods igr,msc] [--workspace DIR]
-        [--export-only] [--keep-stale]
+    .venv/bin/python scripts/reference_checkpoints.py [--methods igr,msc] [--seeds 0,1,2]
+        [--workspace DIR] [--storage float32|float16] [--export-only] [--keep-stale]
 
-For every trainable method of the default sweep (``configs/sweeps/default.yaml``) at the default
-profile and seed 0, it computes the checkpoint key the current code gives, trains it with
-``shapebench train -m M -d synthetic --retrain --workspace DIR`` unless DIR already holds a
-finished training of that key (``--export-only``: never train), and writes the weights (no
-optimiser state) and ``reference.json`` (key, command, versions, machine, wall time, final loss
-terms) to ``shapebench/reference_checkpoints/<family>/<key>/``. Folders of a family whose key is
-no longer the current one are removed unless ``--keep-stale``. Methods sharing a checkpoint
-(``msc`` and ``msc-noopt``) are trained once. See :mod:`shapebench.train.references`.
+For every trainable method of the default sweep (``configs/sweeps/default.yaml``), or those
+``--methods`` names, at the default profile and each of ``--seeds`` (0), it computes the checkpoint
+key the current code gives, trains it with ``shapebench train -m M -d synthetic --retrain [--seed S]
+--workspace DIR`` unless DIR already holds a finished training of that key (``--export-only``: never
+train), and writes the weights (no optimiser state) and ``reference.json`` (key, command, versions,
+machine, wall time, final loss terms) to ``shapebench/reference_checkpoints/<family>/<key>/``.
+Folders of a family whose key is no longer among those exported are removed unless ``--keep-stale``
+(so ship every seed of a family in one call). Methods sharing a checkpoint (``msc`` and
+``msc-noopt``) are trained once. See :mod:`shapebench.train.references`.
 
 A training is exported only if it ran at the commit the tree is at now, with no uncommitted
 changes (the tags of its MLflow run): the key digests the method's code, not every module a
 training goes through, and a shipped OccNet reference once turned out to be weights that no
 commit trains. ``--allow-dirty`` exports anyway and records the training's commit as it was.
+
+No shipped file may exceed 5 MB (``MAX_BYTES``): an export over it is removed and refused, and
+``--storage float16`` ships the weights rounded to half precision instead (recorded in
+``reference.json``; installing restores float32 tensors holding the rounded values).
 """
 
 from __future__ import annotations
@@ -96,7 +101,15 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="comma-separated (default: every trainable method of the default sweep)",
     )
+    parser.add_argument("--seeds", default="0", help="comma-separated training seeds to ship [0]")
     parser.add_argument("--workspace", default=str(Path(tempfile.gettempdir()) / "shapebench-refs"))
+    parser.add_argument(
+        "--storage",
+        default="float32",
+        choices=("float32", "float16"),
+        help="float32 (as trained) or float16 (weights rounded to half precision, for files "
+        "that would exceed 5 MB)",
+    )
     parser.add_argument("--export-only", action="store_true", help="never train")
     parser.add_argument("--keep-stale", action="store_true")
     parser.add_argument(
@@ -116,7 +129,7 @@ def main(argv: list[str] | None = None) -> None:
     from shapebench.registry.resolve import resolve_dataset, resolve_method
     from shapebench.store.provenance import git_commit
     from shapebench.sweeps.spec import load_sweep, sweep_methods
-    from shapebench.train.references import SHIPPED, export
+    from shapebench.train.references import MAX_BYTES, SHIPPED, export
     from shapebench.train.training import (
         apply_trainer,
         checkpoint_dir,
@@ -140,11 +153,12 @@ def main(argv: list[str] | None = None) -> None:
     # Train everything first, export after: an export rewrites tracked files, and a training
     # started after it would be tagged as made from a modified tree.
     finished = []
-    for name in names:
+    seeds = [int(seed) for seed in args.seeds.split(",")]
+    for name, seed in [(name, seed) for name in names for seed in seeds]:
         method = resolve_method(registry, name, settings, {})
         if not method.cls.trains:
             continue
-        trainer = profile_trainer(settings, 0)
+        trainer = profile_trainer(settings, seed)
         method = apply_trainer(method, trainer)
         key = checkpoint_key(method, dataset, trainer)
         family = method.cls.checkpoint_family or method.name
@@ -152,6 +166,8 @@ def main(argv: list[str] | None = None) -> None:
             continue  # msc-noopt: msc's checkpoint
         workdir = checkpoint_dir(settings, method, key)
         command = ["shapebench", "train", "-m", name, "-d", DATASET, "--retrain"]
+        if seed:
+            command += ["--seed", str(seed)]
         record = read_done(workdir)
         if record is None and args.export_only:
             print(f"{name}: no finished training of key {key} in {workdir.parent}; skipped")
@@ -165,8 +181,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{name}: trained in {time.perf_counter() - start:.0f} s", flush=True)
             record = read_done(workdir)
         done_keys[family].add(key)
-        finished.append((name, key, family, workdir, record, command))
-    for name, key, family, workdir, record, command in finished:
+        finished.append((name, seed, key, family, workdir, record, command))
+    for name, seed, key, family, workdir, record, command in finished:
         tags = training_tags(settings, record["run_id"]) if record.get("run_id") else {}
         problem = provenance_problem(tags, head)  # head: our own exports dirty the tree
         if problem and not args.allow_dirty:
@@ -178,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
             "family": family,
             "dataset": DATASET,
             "profile": settings.profile_name,
-            "seed": 0,
+            "seed": seed,
             "command": " ".join(command),
             "summary": summary,
             "versions": versions(),
@@ -190,7 +206,13 @@ def main(argv: list[str] | None = None) -> None:
         }
         if args.note:
             info["note"] = args.note
-        ref = export(Path(record["path"]), target / family / key, info)
+        ref = export(Path(record["path"]), target / family / key, info, args.storage)
+        if ref.info["bytes"] > MAX_BYTES:
+            shutil.rmtree(ref.folder)
+            raise SystemExit(
+                f"{name}: not exported: {ref.info['bytes'] / 1e6:.1f} MB is over the "
+                f"{MAX_BYTES / 1e6:g} MB a shipped file may take (--storage float16 halves it)"
+            )
         print(
             f"{name}: {ref.checkpoint} ({ref.info['bytes'] / 1e6:.2f} MB), "
             f"trained in {summary['wall_seconds']:.0f} s on {summary['device']}"

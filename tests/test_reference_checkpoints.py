@@ -180,3 +180,32 @@ def test_the_export_script_ships_only_trainings_of_the_clean_tree_it_runs_in():
     )
     assert "records no git commit" in script.provenance_problem({}, head)
     assert "commit first" in script.provenance_problem(clean, head + "-dirty")
+
+
+def test_half_precision_storage_ships_rounded_weights_and_installs_float32(tmp_path):
+    """A network too large for a shipped file is stored in float16: the file shrinks, the
+    reference records it, and installing gives float32 tensors holding the rounded values."""
+    import torch
+
+    from shapebench.train.checkpoints import STAMP, load_safely
+
+    weights = {"layer.weight": torch.randn(256, 256), "steps": torch.tensor(7)}
+    last = tmp_path / "last.ckpt"
+    torch.save({"state_dict": weights, STAMP: {"key": "k1"}, "optimizer_states": [1]}, last)
+    full = refs.export(last, tmp_path / "refs" / "fam" / "k1", {"key": "k1"})
+    half = refs.export(last, tmp_path / "half" / "fam" / "k1", {"key": "k1"}, "float16")
+    assert full.info["storage"] == "float32" and half.info["storage"] == "float16"
+    assert half.info["bytes"] < 0.6 * full.info["bytes"]
+    stored = load_safely(half.checkpoint)
+    assert stored["state_dict"]["layer.weight"].dtype == torch.float16
+    assert stored["state_dict"]["steps"].dtype == torch.int64  # only float32 tensors are rounded
+    assert "optimizer_states" not in stored
+
+    installed = load_safely(refs.install(half, tmp_path / "ws"))["state_dict"]
+    assert installed["layer.weight"].dtype == torch.float32
+    rounded = weights["layer.weight"].half().float()
+    assert torch.equal(installed["layer.weight"], rounded)
+    assert not torch.equal(rounded, weights["layer.weight"])
+    assert torch.equal(installed["steps"], weights["steps"])
+    with pytest.raises(ValueError, match="float16"):
+        refs.export(last, tmp_path / "bad", {"key": "k1"}, "int8")

@@ -9,10 +9,15 @@ checkpoints its maintainers trained with ``scripts/reference_checkpoints.py``, o
     shapebench/reference_checkpoints/<family>/<key>/reference.json   how it was made
 
 ``reference.json`` records the key, the exact ``shapebench train`` command, the package versions,
-the machine, the wall time and the final loss terms. When ``run`` or ``sweep`` needs the
-checkpoint of a key that has a reference folder, the reference is copied into the workspace (and
-logged as a training run tagged ``shapebench.reference``) instead of training; a key with no
-reference folder (other options, edited code, another dataset or seed) trains as before.
+the machine, the wall time, the final loss terms and how the weights are stored: as trained
+(``float32``) or rounded to half precision (``float16``, for a network whose file would exceed
+the :data:`MAX_BYTES` a shipped file may take; installing turns them back into float32, so the
+installed weights are the rounded ones, and the file's digest says so).
+
+When ``run`` or ``sweep`` needs the checkpoint of a key that has a reference folder, the
+reference is copied into the workspace (and logged as a training run tagged
+``shapebench.reference``) instead of training; a key with no reference folder (other options,
+edited code, another dataset or seed) trains as before.
 ``--retrain`` trains locally even when a reference exists.
 
 Weights trained on another machine differ from a local training of the same key (floating-point
@@ -37,6 +42,10 @@ INFO_FILE = "reference.json"
 #: Lightning's checkpoint entries a reference keeps: enough to rebuild and verify the module
 #: (:func:`shapebench.train.checkpoints.build_module`), not to resume its training.
 KEPT_ENTRIES = ("state_dict", "hyper_parameters", "shapebench", "pytorch-lightning_version")
+#: How a reference's floating-point weights may be stored (``reference.json``'s ``storage``).
+STORAGES = ("float32", "float16")
+#: The largest file shapebench ships (the package and the repository stay small).
+MAX_BYTES = 5_000_000
 
 
 @dataclass(frozen=True)
@@ -111,24 +120,52 @@ def install(ref: Reference, workdir: Path) -> Path:
     workdir.mkdir(parents=True, exist_ok=True)
     target = workdir / CHECKPOINT_FILE
     tmp = target.with_name(target.name + ".tmp")
-    shutil.copyfile(ref.checkpoint, tmp)
+    if ref.info.get("storage", "float32") == "float16":
+        import torch
+
+        from shapebench.train.checkpoints import load_safely
+
+        checkpoint = load_safely(ref.checkpoint)
+        torch.save(_cast(checkpoint, "float16", "float32"), tmp)
+    else:
+        shutil.copyfile(ref.checkpoint, tmp)
     tmp.replace(target)
     return target
 
 
-def export(last_ckpt: Path, folder: Path, info: dict[str, Any]) -> Reference:
+def _cast(checkpoint: dict[str, Any], from_dtype: str, to_dtype: str) -> dict[str, Any]:
+    """``checkpoint`` with its ``from_dtype`` weights cast to ``to_dtype`` (the rest as is)."""
+    import torch
+
+    old, new = getattr(torch, from_dtype), getattr(torch, to_dtype)
+    state = {
+        name: value.to(new) if torch.is_tensor(value) and value.dtype == old else value
+        for name, value in checkpoint["state_dict"].items()
+    }
+    return {**checkpoint, "state_dict": state}
+
+
+def export(
+    last_ckpt: Path, folder: Path, info: dict[str, Any], storage: str = "float32"
+) -> Reference:
     """Write a reference folder from a finished training's ``last.ckpt``: the weights without
-    the optimiser and loop state, and ``info`` completed with the file's digest."""
+    the optimiser and loop state (``storage="float16"``: float32 weights rounded to half
+    precision), and ``info`` completed with the storage and the file's digest."""
     import torch
 
     from shapebench.train.checkpoints import load_safely
 
+    if storage not in STORAGES:
+        raise ValueError(f"storage {storage!r} is not one of {', '.join(STORAGES)}")
     checkpoint = load_safely(last_ckpt)
     kept = {k: checkpoint[k] for k in KEPT_ENTRIES if k in checkpoint}
+    if storage == "float16":
+        kept = _cast(kept, "float32", "float16")
     folder.mkdir(parents=True, exist_ok=True)
     torch.save(kept, folder / CHECKPOINT_FILE)
     info = {
         **info,
+        "storage": storage,
         "sha256": file_sha256(folder / CHECKPOINT_FILE),
         "bytes": (folder / CHECKPOINT_FILE).stat().st_size,
     }
