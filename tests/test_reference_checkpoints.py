@@ -56,7 +56,16 @@ def test_shipped_references_load_and_hold_their_keys():
 
 
 #: The trainable methods whose default-profile training on the synthetic benchmark ships.
-SHIPPED_METHODS = ("igr", "deepsdf", "msc", "msc-noopt", "occnet", "convonet")
+SHIPPED_METHODS = (
+    "igr",
+    "deepsdf",
+    "msc",
+    "msc-noopt",
+    "occnet",
+    "convonet",
+    "msc-hier",
+    "msc-hier-noopt",
+)
 
 
 @pytest.mark.parametrize("name", SHIPPED_METHODS)
