@@ -65,6 +65,7 @@ SHIPPED_METHODS = (
     "convonet",
     "msc-hier",
     "msc-hier-noopt",
+    "pointr",
 )
 
 
