@@ -95,6 +95,8 @@ def training_tags(settings, run_id: str) -> dict[str, str]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from shapebench.train.references import MAX_BYTES, STORAGES  # no torch at import
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--methods",
@@ -106,9 +108,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--storage",
         default="float32",
-        choices=("float32", "float16"),
+        choices=STORAGES,
         help="float32 (as trained) or float16 (weights rounded to half precision, for files "
-        "that would exceed 5 MB)",
+        f"that would exceed {MAX_BYTES / 1e6:g} MB)",
     )
     parser.add_argument("--export-only", action="store_true", help="never train")
     parser.add_argument("--keep-stale", action="store_true")
@@ -129,7 +131,7 @@ def main(argv: list[str] | None = None) -> None:
     from shapebench.registry.resolve import resolve_dataset, resolve_method
     from shapebench.store.provenance import git_commit
     from shapebench.sweeps.spec import load_sweep, sweep_methods
-    from shapebench.train.references import MAX_BYTES, SHIPPED, export
+    from shapebench.train.references import SHIPPED, export
     from shapebench.train.training import (
         apply_trainer,
         checkpoint_dir,
