@@ -148,32 +148,3 @@ def test_a_step_schedule_halves_the_learning_rate_every_n_steps():
         sched["scheduler"].step()
     assert rates == [1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.25]
     assert "lr_scheduler" not in adam_halving(params, 1.0, every=500, every_steps=0)
-
-
-def _flushes() -> bool:
-    """Whether CPU arithmetic flushes subnormals now: half the smallest normal float32 is a
-    subnormal, zero when flushed."""
-    return torch.tensor([1.1754944e-38]).mul(0.5).item() == 0.0
-
-
-def test_flushed_denormals_flushes_inside_nests_and_restores():
-    from shapebench.train.denormals import flushed_denormals
-
-    if not torch.set_flush_denormal(False):
-        pytest.skip("this CPU cannot flush subnormals (torch.set_flush_denormal is x86/ARM only)")
-    assert not _flushes()
-    with flushed_denormals():
-        assert _flushes()
-        with flushed_denormals():  # an evaluation that trains
-            assert _flushes()
-        assert _flushes()  # the inner block does not switch it off for the outer one
-    assert not _flushes()
-
-
-def test_flushing_subnormals_leaves_trained_weights_bitwise_equal(tmp_path):
-    from shapebench.train.denormals import flushed_denormals
-
-    plain = _train(tmp_path, seed=3, name="plain")
-    with flushed_denormals():
-        flushed = _train(tmp_path, seed=3, name="flushed")
-    assert _same(plain, flushed)

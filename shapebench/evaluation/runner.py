@@ -37,7 +37,6 @@ from shapebench.store.failures import store_failure
 from shapebench.store.provenance import git_commit
 from shapebench.store.records import CellRecord
 from shapebench.store.tracking import Tracker, experiment_name, flatten
-from shapebench.train.denormals import flushed_denormals
 
 #: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
 EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluation.pictures.PICTURES_PER_CELL)
@@ -415,8 +414,7 @@ def complete_chunk(method: Method, contexts: list[Context], n_points: int):
     """The method's outputs for a chunk of contexts, and the seconds spent per object."""
     start = time.perf_counter()
     try:
-        with flushed_denormals():  # subnormals are slow on a CPU and change no result
-            outputs = method.complete_batch(contexts, n_points)
+        outputs = method.complete_batch(contexts, n_points)
         if len(outputs) != len(contexts):
             raise RuntimeError(
                 f"complete_batch returned {len(outputs)} results for {len(contexts)} contexts"

@@ -35,7 +35,6 @@ from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.store.records import CHECKPOINT_KEY_TAG, training_tags
 from shapebench.store.tracking import Tracker, flatten, training_experiment_name
-from shapebench.train.denormals import flushed_denormals
 
 if TYPE_CHECKING:
     from shapebench.train.references import Reference
@@ -276,10 +275,9 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
         os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
     instance = method.instantiate()
     try:
-        with flushed_denormals():  # subnormals are slow on a CPU and change no weight
-            path = instance.fit(
-                TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id, quiet)
-            )
+        path = instance.fit(
+            TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id, quiet)
+        )
     except BaseException as exc:
         if tracker is not None:
             interrupted = isinstance(exc, (TrainingInterrupted, KeyboardInterrupt))
