@@ -113,3 +113,18 @@ def test_run_through_the_cluster_launcher_computes_the_cells_run_inline_finds(sh
     assert len(sb.cell_runs("synthetic-novel")) == 1
     res = sb(*args, "--launcher", "slurm", "--checkpoint", str(sb.workspace / "mlflow.db"))
     assert res.returncode == 2 and "--launcher inline" in res.stderr
+
+
+def test_a_job_rebuilds_the_sweep_narrowed_as_it_was_submitted(tmp_path):
+    """Cells travel as indices among the method entries, so a job of `sweep -m msc` must narrow
+    the sweep file the same way, or it would run another method's cell."""
+    from pathlib import Path
+
+    from shapebench.sweeps.cluster import JobContext
+    from shapebench.sweeps.spec import only_methods, sweep_methods
+
+    path = Path(__file__).parent.parent / "configs/sweeps/data-scaling.yaml"
+    ctx = JobContext(str(path), None, "", str(tmp_path), str(tmp_path), {}, methods=("msc",))
+    rebuilt = sweep_methods(ctx.spec())
+    assert rebuilt == sweep_methods(only_methods(load_sweep(path), ["msc"]))
+    assert {e.name for e in rebuilt} == {"msc"} and len(rebuilt) == 3

@@ -87,3 +87,24 @@ def test_a_method_entry_may_name_only_datasets_the_sweep_has(tmp_path):
     )
     with pytest.raises(ConfigError, match=r"names datasets \['big'\].*label: big"):
         load_sweep(path)
+
+
+def test_a_sweep_narrowed_to_some_methods_keeps_their_entries_and_keys(tmp_path):
+    """`shapebench sweep -m msc,msc-noopt`: MSC's part of the data-scaling cross, with the same
+    entries (options, datasets, labels) as in the whole sweep; an absent name is one clear error."""
+    from shapebench.api.errors import ConfigError
+    from shapebench.sweeps.spec import only_methods, pairs
+
+    spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/data-scaling.yaml")
+    whole = pairs(spec, sweep_methods(spec))
+    part = only_methods(spec, ["msc,msc-noopt"])
+    assert only_methods(spec, ["msc", "msc-noopt"]) == part
+    kept = pairs(part, sweep_methods(part))
+    # Four sizes at the profile's budget and two longer budgets at the largest, for each.
+    assert len(kept) == 2 * (4 + 2)
+    expected = [(ds, m) for _, ds, _, m in whole if m.name in ("msc", "msc-noopt")]
+    assert [(ds, m) for _, ds, _, m in kept] == expected
+    assert only_methods(spec, []) is spec
+    with pytest.raises(ConfigError, match=r"no entry of method 'mcs'") as err:
+        only_methods(spec, ["msc,mcs"])
+    assert "msc-noopt" in err.value.hint

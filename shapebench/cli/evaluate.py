@@ -199,6 +199,14 @@ def run(
 )
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only summaries.")
 @click.option(
+    "--method",
+    "-m",
+    "methods",
+    multiple=True,
+    help="Run only the sweep file's entries of this method (repeatable or comma-separated), "
+    "with the same cells and keys as the whole sweep: e.g. -m msc,msc-noopt.",
+)
+@click.option(
     "--launcher",
     type=click.Choice(["inline", "local", "slurm", "submitit-local"]),
     default=None,
@@ -235,6 +243,7 @@ def sweep(
     force,
     retrain,
     quiet,
+    methods,
     launcher,
     jobs,
     slurm_opts,
@@ -288,11 +297,12 @@ def sweep(
       shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
       shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
       shapebench sweep configs/sweeps/default.yaml --status
+      shapebench sweep configs/sweeps/data-scaling.yaml -m msc,msc-noopt   # MSC's part
     """
     from shapebench.cli.printing import print_summary
-    from shapebench.sweeps.spec import load_sweep
+    from shapebench.sweeps.spec import load_sweep, only_methods
 
-    spec = load_sweep(Path(sweep_file))
+    spec = only_methods(load_sweep(Path(sweep_file)), methods)
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
     if frame is not None or context_normals is not None:
         from dataclasses import replace
@@ -321,6 +331,7 @@ def sweep(
         worker=worker,
         frame=frame,
         context_normals=context_normals,
+        methods=tuple(methods),
     )
     if status:
         show_status(launch)

@@ -145,6 +145,9 @@ class JobContext:
     context_normals: bool | None = None
     per_job_store: bool = False
     threads: int | None = None
+    #: ``shapebench sweep -m``: the method entries the submitting process kept (cells are
+    #: addressed by their index among them)
+    methods: tuple[str, ...] = ()
 
     def settings(self) -> Settings:
         settings = make_settings(self.tracking_uri, self.cache_dir, self.profile, self.workspace)
@@ -156,9 +159,9 @@ class JobContext:
 
     def spec(self) -> Any:
         from shapebench.api.protocol import Protocol
-        from shapebench.sweeps.spec import load_sweep
+        from shapebench.sweeps.spec import load_sweep, only_methods
 
-        spec = load_sweep(Path(self.sweep_file))
+        spec = only_methods(load_sweep(Path(self.sweep_file)), self.methods)
         if self.frame is not None or self.context_normals is not None:
             spec = replace(
                 spec,

@@ -7,8 +7,8 @@ methods train in a process of their own (see :mod:`shapebench.train.training`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -240,6 +240,25 @@ def sweep_methods(spec: SweepSpec) -> list[Entry]:
     for ds in spec.datasets:
         registry.get("dataset", ds.name)
     return list(methods)
+
+
+def only_methods(spec: SweepSpec, names: Iterable[str]) -> SweepSpec:
+    """``spec`` keeping only the method entries named in ``names`` (``shapebench sweep -m``;
+    each name may be a comma-separated list); no names keep every entry. What is kept runs
+    exactly as in the whole sweep: the same cells, keys and rows, so a sweep can be run in parts
+    (MSC's entries today, the others on another machine) and its tables built from them all."""
+    wanted = {n.strip() for name in names for n in name.split(",") if n.strip()}
+    if not wanted:
+        return spec
+    entries = sweep_methods(spec)
+    present = {e.name for e in entries}
+    unknown = sorted(wanted - present)
+    if unknown:
+        raise ConfigError(
+            f"sweep {spec.name!r} has no entry of method {', '.join(map(repr, unknown))}",
+            f"its methods: {', '.join(sorted(present))}",
+        )
+    return replace(spec, methods=[e for e in entries if e.name in wanted])
 
 
 def request(

@@ -61,6 +61,8 @@ class SweepLaunch:
     #: Protocol given on the command line (jobs pass it on); None: the sweep file's.
     frame: str | None = None
     context_normals: bool | None = None
+    #: ``-m``: the method entries kept (``spec`` is already narrowed; jobs narrow it again).
+    methods: tuple[str, ...] = ()
 
     def trainer_for_seed(self) -> Callable[[int], Any]:
         return lambda seed: trainer_options(self.settings, seed, **self.trainer)
@@ -165,6 +167,7 @@ def cluster_sweep(launch: SweepLaunch) -> None:
         context_normals=launch.context_normals,
         per_job_store=per_job,
         threads=threads,
+        methods=launch.methods,
     )
     folder = settings.artifact_root.parent / "logs" / "submitit" / spec.name
     names = [m.name for m in sweep_methods(spec)]
