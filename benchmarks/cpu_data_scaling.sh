@@ -39,8 +39,10 @@ pack)
         dir=$(dirname "$ckpt")
         [ -e "$dir/done.json" ] || unfinished+=("$dir")
     done < <(find checkpoints -name last.ckpt 2>/dev/null)
-    find artifacts -name per_object.csv -o -name '*.json' -o -name '*.txt' >/tmp/pack-list
-    tar -cJf "$archive" mlflow.db -T /tmp/pack-list "${unfinished[@]}"
+    list=$(mktemp)
+    trap 'rm -f "$list"' EXIT
+    find artifacts -name per_object.csv -o -name '*.json' -o -name '*.txt' >"$list"
+    tar -cJf "$archive" mlflow.db -T "$list" "${unfinished[@]}"
     echo "packed $(du -h "$archive" | cut -f1) into $archive (unfinished trainings: ${#unfinished[@]})"
     ;;
 *)
