@@ -5,7 +5,8 @@ Option values are resolved in this order, later ones winning:
 1. the plugin's own defaults (its ``Options`` dataclass);
 2. ``configs/methods/<name>.yaml`` or ``configs/datasets/<name>.yaml``;
 3. the profile (``configs/profiles/<profile>.yaml``: ``quick`` for a CPU, ``paper`` for the
-   paper's scale), under its ``methods:``/``datasets:``/``trainer:`` keys;
+   paper's scale), under its ``methods:``/``datasets:``/``trainer:`` keys (a profile may
+   ``extends: <other>`` and state only what differs);
 4. the sweep file's per-entry options (``shapebench sweep``);
 5. command-line flags (``-O key=value`` for the method, ``-D key=value`` for the dataset).
 
@@ -112,7 +113,10 @@ def available_profiles() -> list[str]:
     return sorted({p.stem for d in config_dirs() for p in (d / "profiles").glob("*.yaml")})
 
 
-def load_profile(name: str) -> dict[str, Any]:
+def load_profile(name: str, _seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The profile ``name``; one that says ``extends: <other>`` is that profile with its own keys
+    merged in (mappings key by key, anything else replaced), so a profile that changes a few
+    budgets states only those and cannot drift from the profile it extends."""
     path = _find("profiles", name)
     if path is None:
         raise UnknownNameError(
@@ -122,7 +126,26 @@ def load_profile(name: str) -> dict[str, Any]:
             hint="profiles live in configs/profiles/<name>.yaml; 'shapebench init' writes "
             "an editable copy of the built-in ones, or set SHAPEBENCH_CONFIG_DIR to use yours",
         )
-    return read_yaml(path)
+    data = read_yaml(path)
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise ConfigError(f"profile {path}: 'extends' must name one profile, got {parent!r}")
+    if parent in (*_seen, name):
+        chain = " -> ".join((*_seen, name, parent))
+        raise ConfigError(f"profile {path}: 'extends' goes round in a circle ({chain})")
+    return _merged(load_profile(parent, (*_seen, name)), data)
+
+
+def _merged(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def plugin_overrides(kind: str, name: str, profile: dict[str, Any]) -> dict[str, Any]:

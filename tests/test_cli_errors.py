@@ -94,3 +94,31 @@ def test_trainable_method_on_a_dataset_without_training_objects(shapebench, tmp_
         "gt_points=1000",
     )
     _clean_error(res, "method 'igr' needs training", "has no training objects", "--checkpoint")
+
+
+def test_a_profile_extends_another_and_states_only_what_differs(tmp_path, monkeypatch):
+    from shapebench.api.errors import ConfigError
+    from shapebench.config import load_profile
+
+    profiles = tmp_path / "profiles"
+    profiles.mkdir()
+    (profiles / "bigger.yaml").write_text(
+        "extends: quick\n"
+        "datasets:\n  synthetic:\n    train_per_category: 200\n"
+        "methods:\n  msc:\n    steps: 10800\n"
+    )
+    monkeypatch.setenv("SHAPEBENCH_CONFIG_DIR", str(tmp_path))
+    quick, bigger = load_profile("quick"), load_profile("bigger")
+    assert "extends" not in bigger
+    assert bigger["datasets"]["synthetic"]["train_per_category"] == 200
+    assert bigger["methods"]["msc"]["steps"] == 10800
+    # Everything else is the extended profile's, key by key inside the mappings.
+    assert bigger["methods"]["msc"]["latent_dim"] == quick["methods"]["msc"]["latent_dim"]
+    assert bigger["datasets"]["synthetic"]["gt_points"] == quick["datasets"]["synthetic"]["gt_points"]
+    assert bigger["methods"]["igr"] == quick["methods"]["igr"]
+    assert bigger["trainer"] == quick["trainer"]
+
+    (profiles / "a.yaml").write_text("extends: b\n")
+    (profiles / "b.yaml").write_text("extends: a\n")
+    with pytest.raises(ConfigError, match=r"circle \(a -> b -> a\)"):
+        load_profile("a")
