@@ -114,7 +114,8 @@ def test_a_profile_extends_another_and_states_only_what_differs(tmp_path, monkey
     assert bigger["methods"]["msc"]["steps"] == 10800
     # Everything else is the extended profile's, key by key inside the mappings.
     assert bigger["methods"]["msc"]["latent_dim"] == quick["methods"]["msc"]["latent_dim"]
-    assert bigger["datasets"]["synthetic"]["gt_points"] == quick["datasets"]["synthetic"]["gt_points"]
+    synthetic = bigger["datasets"]["synthetic"]
+    assert synthetic["gt_points"] == quick["datasets"]["synthetic"]["gt_points"]
     assert bigger["methods"]["igr"] == quick["methods"]["igr"]
     assert bigger["trainer"] == quick["trainer"]
 

@@ -135,6 +135,39 @@ def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):
     assert rows[None][2] == rows[20][2]  # the same test objects: the rows can be compared
 
 
+def test_more_test_objects_keep_every_checkpoint_key(tmp_path):
+    """-D test_per_category=10 evaluates more objects with the same trained weights: the training
+    objects do not depend on it, so neither does the checkpoint key; the evaluated set and its
+    fingerprint (the cell keys) do. ShapeNet's cap on test models is the same kind of option."""
+    from shapebench.api.method import TrainerOptions
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.training import checkpoint_key
+
+    settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
+    reg = get_registry()
+    method = resolve_method(reg, "msc", settings)
+    trainer = TrainerOptions(accelerator="cpu")
+    small = resolve_dataset(reg, "synthetic", settings, None, {"test_per_category": 2})
+    large = resolve_dataset(reg, "synthetic", settings, None, {"test_per_category": 10})
+    assert checkpoint_key(method, small, trainer) == checkpoint_key(method, large, trainer)
+    assert small.objects("train") == large.objects("train")
+    assert small.fingerprint() != large.fingerprint()
+    assert len(large.objects("trained")) == 5 * len(small.objects("trained"))
+    # An option the training objects do depend on still changes the key.
+    more = resolve_dataset(reg, "synthetic", settings, None, {"train_per_category": 20})
+    assert checkpoint_key(method, more, trainer) != checkpoint_key(method, small, trainer)
+
+    from shapebench_shapenet.dataset import ShapeNetOptions
+
+    from shapebench.api.dataset import _options
+
+    options = ShapeNetOptions(max_test_per_category=3)
+    assert "max_test_per_category" in _options(options, training=False)
+    assert "max_test_per_category" not in _options(options, training=True)
+    assert "max_train_per_category" in _options(options, training=True)
+
+
 def test_code_digest_follows_the_source(tmp_path, monkeypatch):
     from shapebench.registry import code_digest as cd
 

@@ -39,6 +39,9 @@ def max_test_option() -> Any:
         metadata={
             "help": "evaluate at most this many test models per category (0: all)",
             "selection": True,
+            # It picks among the test models only: the training models, and so every
+            # checkpoint key, do not depend on it.
+            "evaluation_only": True,
         },
     )
 

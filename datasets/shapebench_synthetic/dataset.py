@@ -36,6 +36,9 @@ class SyntheticOptions(MeshOptions):
         metadata={
             "help": "test objects per category (raise it for a larger benchmark)",
             "selection": True,
+            # The training objects are train-000... whatever the test count: a larger test set
+            # reuses every trained checkpoint.
+            "evaluation_only": True,
         },
     )
     train_per_category: int = field(

@@ -26,9 +26,6 @@ from shapebench.train.lightning_method import LightningMethod
 class PCNOptions:
     feature: int = option(1024, "global feature size (1024)")
     num_coarse: int = option(1024, "coarse output points (1024)")
-    # Most of PCN's weights are the coarse decoder's two hidden layers (2.1 of 2.9 million at
-    # quick's sizes): their width sets the size of a shipped checkpoint (docs/methods.md).
-    decoder_width: int = option(1024, "width of the coarse decoder's hidden layers (1024)")
     grid_size: int = option(4, "folding grid per axis (4: 16 points)")
     grid_scale: float = option(0.05, "folding grid half-width")
     target_points: int = option(16384, "target points per object")

@@ -20,9 +20,7 @@ class PCNModule(OptionsModule):
     def __init__(self, options: PCNOptions | None = None, n_shapes: int = 0, **saved) -> None:
         super().__init__(options, n_shapes, **saved)
         o = self.options
-        self.network = PCNNetwork(
-            o.feature, o.num_coarse, o.grid_size, o.grid_scale, o.decoder_width
-        )
+        self.network = PCNNetwork(o.feature, o.num_coarse, o.grid_size, o.grid_scale)
 
     def losses(self, points: torch.Tensor, target: torch.Tensor) -> dict[str, torch.Tensor]:
         coarse, fine = self.network(points)

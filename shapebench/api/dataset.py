@@ -105,8 +105,12 @@ class Dataset(ABC):
         *which* objects form the splits (test fraction, objects per category, split files) but not
         how one object is processed: they count only for ``selection=True``, so changing them
         changes the evaluated set (and the cell keys) without re-preprocessing any object.
-        Override to add what options cannot show (the contents of a user's split files, a
-        preprocessing version); put selection-only additions under ``if selection``.
+        Options marked ``metadata={"evaluation_only": True}`` (how many test objects a category
+        gives, when the training objects do not depend on it) count only for ``training=False``,
+        so changing them changes the evaluated set but keeps every checkpoint key: a larger test
+        set reuses the trained weights. Override to add what options cannot show (the contents
+        of a user's split files, a preprocessing version); put selection-only additions under
+        ``if selection``.
         """
         return {
             "name": self.name,
@@ -188,6 +192,7 @@ def _options(options: Any, training: bool, selection: bool = True) -> dict[str, 
         f.name: getattr(options, f.name)
         for f in fields(options)
         if (training or not f.metadata.get("training_only"))
+        and not (training and f.metadata.get("evaluation_only"))
         and (selection or not f.metadata.get("selection"))
     }
 

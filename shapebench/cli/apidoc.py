@@ -37,6 +37,8 @@ from shapebench.api.protocol import FRAMES
 DEFAULT_OUT = Path(__file__).resolve().parents[2] / "docs" / "api.md"
 COMMAND = "python -m shapebench.cli.apidoc"
 
+#: The option ``metadata`` keys that are flags, shown beside an option's help.
+OPTION_FLAGS = ("completion_only", "training_only", "evaluation_only", "selection")
 #: Option ``metadata`` keys: (key, options it applies to, effect, the module that reads it).
 OPTION_METADATA = [
     ("help", "any", "the text `shapebench methods` / `shapebench datasets` print", "api.options"),
@@ -52,6 +54,14 @@ OPTION_METADATA = [
         "dataset",
         "the option changes training data only (sample counts): changing it retrains methods "
         "but keeps the test objects, contexts and cell keys",
+        "api.dataset",
+    ),
+    (
+        "evaluation_only",
+        "dataset",
+        "the option changes the evaluated objects only (how many test objects, when the "
+        "training objects do not depend on it): it is left out of the checkpoint key, so "
+        "changing it reuses the trained weights",
         "api.dataset",
     ),
     (
@@ -272,7 +282,7 @@ def _fields(cls: type) -> list[str]:
         else:
             default = "required"
         meaning = comments.get(f.name) or f.metadata.get("help", "")
-        flags = [k for k in ("completion_only", "training_only", "selection") if f.metadata.get(k)]
+        flags = [k for k in OPTION_FLAGS if f.metadata.get(k)]
         if flags:
             meaning += f" ({', '.join(flags)})"
         kind = _cell(f"`{f.type}`")
