@@ -1,16 +1,18 @@
 """Train (or take) the reference checkpoints shapebench ships for the synthetic benchmark.
 
     .venv/bin/python scripts/reference_checkpoints.py [--methods igr,msc] [--seeds 0,1,2]
-        [--workspace DIR] [--storage float32|float16] [--export-only] [--keep-stale]
+        [--profile quick|standard] [--workspace DIR] [--storage float32|float16] [--export-only]
+        [--keep-stale]
 
 For every trainable method of the default sweep (``configs/sweeps/default.yaml``), or those
-``--methods`` names, at the default profile and each of ``--seeds`` (0), it computes the checkpoint
-key the current code gives, trains it with ``shapebench train -m M -d synthetic --retrain [--seed S]
---workspace DIR`` unless DIR already holds a finished training of that key (``--export-only``: never
-train), and writes the weights (no optimiser state) and ``reference.json`` (key, command, versions,
-machine, wall time, final loss terms) to ``shapebench/reference_checkpoints/<family>/<key>/``.
-Folders of a family whose key is no longer among those exported are removed unless ``--keep-stale``
-(so ship every seed of a family in one call). Methods sharing a checkpoint (``msc`` and
+``--methods`` names, at the default profile (or ``--profile``) and each of ``--seeds`` (0), it
+computes the checkpoint key the current code gives, trains it with ``shapebench train -m M -d
+synthetic --retrain [--seed S] [--profile P] --workspace DIR`` unless DIR already holds a finished
+training of that key (``--export-only``: never train), and writes the weights (no optimiser
+state) and ``reference.json`` (key, command, versions, machine, wall time, final loss terms) to
+``shapebench/reference_checkpoints/<family>/<key>/``. Folders of a family and profile whose key
+is no longer among those exported are removed unless ``--keep-stale`` (so ship every seed of a
+family in one call); another profile's are kept. Methods sharing a checkpoint (``msc`` and
 ``msc-noopt``) are trained once. See :mod:`shapebench.train.references`.
 
 A training is exported only if it ran at the commit the tree is at now, with no uncommitted
@@ -104,6 +106,7 @@ def main(argv: list[str] | None = None) -> None:
         help="comma-separated (default: every trainable method of the default sweep)",
     )
     parser.add_argument("--seeds", default="0", help="comma-separated training seeds to ship [0]")
+    parser.add_argument("--profile", default=None, help="the profile to ship [the default]")
     parser.add_argument("--workspace", default=str(Path(tempfile.gettempdir()) / "shapebench-refs"))
     parser.add_argument(
         "--storage",
@@ -131,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     from shapebench.registry.resolve import resolve_dataset, resolve_method
     from shapebench.store.provenance import git_commit
     from shapebench.sweeps.spec import load_sweep, sweep_methods
-    from shapebench.train.references import SHIPPED, export
+    from shapebench.train.references import INFO_FILE, SHIPPED, export
     from shapebench.train.training import (
         apply_trainer,
         checkpoint_dir,
@@ -141,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
     )
 
     os.environ["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = "none"  # train, never install
-    settings = make_settings(None, None, None, args.workspace)
+    settings = make_settings(None, None, args.profile, args.workspace)
     registry = get_registry()
     default = load_sweep(ROOT / "configs" / "sweeps" / "default.yaml")
     names = args.methods.split(",") if args.methods else [m.name for m in sweep_methods(default)]
@@ -170,6 +173,8 @@ def main(argv: list[str] | None = None) -> None:
         command = ["shapebench", "train", "-m", name, "-d", DATASET, "--retrain"]
         if seed:
             command += ["--seed", str(seed)]
+        if args.profile:
+            command += ["--profile", args.profile]
         record = read_done(workdir)
         if record is None and args.export_only:
             print(f"{name}: no finished training of key {key} in {workdir.parent}; skipped")
@@ -225,6 +230,10 @@ def main(argv: list[str] | None = None) -> None:
         if not keys:  # nothing of this family exported (e.g. --export-only, no training): keep
             continue
         for folder in sorted((target / family).iterdir()):
+            info = folder / INFO_FILE
+            profile = json.loads(info.read_text()).get("profile") if info.exists() else None
+            if profile != settings.profile_name:
+                continue  # another profile's reference
             if folder.is_dir() and folder.name not in keys:
                 shutil.rmtree(folder)
                 print(f"removed stale reference {folder}")
