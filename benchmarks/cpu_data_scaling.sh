@@ -14,11 +14,13 @@
 #       --out leaderboards/data-scaling/cpu
 #
 # WS is /tmp/S/ws: the store records its artifacts' absolute paths, so it unpacks where it was
-# made. The archive is leaderboards/data-scaling/cpu/workspace.tar.xz.
+# made. The archive is leaderboards/data-scaling/cpu/workspace.tar.xz. Another store carries the
+# same way with both set, e.g. the standard profile's trainings:
+#   WS=/tmp/S/ws2 ARCHIVE=leaderboards/standard/workspace.tar.xz bash benchmarks/cpu_data_scaling.sh pack
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ws=${WS:-/tmp/S/ws}
-archive=$PWD/leaderboards/data-scaling/cpu/workspace.tar.xz
+archive=$(realpath -m "${ARCHIVE:-leaderboards/data-scaling/cpu/workspace.tar.xz}")
 
 case "${1:-}" in
 unpack)
