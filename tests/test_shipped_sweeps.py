@@ -108,3 +108,39 @@ def test_a_sweep_narrowed_to_some_methods_keeps_their_entries_and_keys(tmp_path)
     with pytest.raises(ConfigError, match=r"no entry of method 'mcs'") as err:
         only_methods(spec, ["msc,mcs"])
     assert "msc-noopt" in err.value.hint
+
+
+def test_the_data_scaling_cross_at_4x_is_the_standard_profiles_seed_0(tmp_path):
+    """A training the data-scaling sweep makes at 2,200 shapes and 4x the steps is the one the
+    standard profile's tables need for seed 0: the same key, trained once."""
+    from shapebench.sweeps.spec import pairs
+
+    root = Path(__file__).parent.parent / "configs" / "sweeps"
+    scaling, standard = load_sweep(root / "data-scaling.yaml"), load_sweep(root / "standard.yaml")
+    registry = get_registry()
+
+    def keys(spec, runs) -> dict[str, str]:
+        settings = make_settings(workspace=str(tmp_path), profile=spec.profile)
+        trainer = profile_trainer(settings, 0)
+        out = {}
+        for _, ds, _, m in runs:
+            method = resolve_method(registry, m.name, settings, m.options)
+            if not method.cls.trains:
+                continue
+            data = resolve_dataset(registry, ds.name, settings, ds.data_root, ds.options)
+            out[m.name] = checkpoint_key(apply_trainer(method, trainer), data, trainer)
+        return out
+
+    four_x = {"igr": 10800, "deepsdf": 10800, "msc": 10800, "msc-noopt": 10800}
+    four_x |= {"msc-hier": 10800, "msc-hier-noopt": 10800, "occnet": 3600, "convonet": 3600}
+    four_x |= {"pointr": 3600}
+    cross = [
+        run
+        for run in pairs(scaling, sweep_methods(scaling))
+        if run[1].label == "2200-shapes"
+        and run[3].name in four_x
+        and run[3].options.get("steps") == four_x[run[3].name]
+    ]
+    assert {run[3].name for run in cross} == set(four_x)
+    standard_keys = keys(standard, pairs(standard, sweep_methods(standard)))
+    assert keys(scaling, cross) == {name: standard_keys[name] for name in four_x}
