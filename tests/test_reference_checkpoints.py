@@ -98,6 +98,32 @@ def test_the_default_profile_still_resolves_to_a_shipped_reference(name, tmp_pat
     )
 
 
+def test_every_shipped_reference_is_still_the_key_of_its_profile_and_seed(tmp_path):
+    """Any profile's, any seed's: a reference whose method, profile or data changed since it was
+    trained would never be used again (and its numbers would describe code that is gone)."""
+    from shapebench.config import make_settings
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.training import apply_trainer, checkpoint_key, profile_trainer
+
+    registry = get_registry()
+    for ref in _shipped():
+        info = ref.info
+        settings = make_settings(
+            workspace=tmp_path, cache_dir=tmp_path / "cache", profile=info["profile"]
+        )
+        method = resolve_method(registry, info["method"], settings, {})
+        dataset = resolve_dataset(registry, info["dataset"], settings, None, {})
+        trainer = replace(profile_trainer(settings, seed=info["seed"]), devices=1)
+        key = checkpoint_key(apply_trainer(method, trainer), dataset, trainer)
+        assert key == info["key"] == ref.folder.name, (
+            f"{ref.folder}: {info['method']} at profile {info['profile']!r}, seed "
+            f"{info['seed']} now has key {key}; retrain it: python "
+            f"scripts/reference_checkpoints.py --methods {info['method']} "
+            f"--profile {info['profile']} --seeds {info['seed']}"
+        )
+
+
 def _make_reference(sb, root) -> refs.Reference:
     """Train the small IGR in a workspace of its own and export it as a reference."""
     trained = sb("train", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_IGR, "-q")
