@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
             # one device, as the references were trained
             trainer = replace(profile_trainer(settings, seed=info["seed"]), devices=1)
             method = apply_trainer(method, trainer)
-            new, old = checkpoint_key(method, dataset, trainer), None
+            new = checkpoint_key(method, dataset, trainer)
             if info["key"] == new:
                 print(f"{folder}: already at its key")
                 continue
