@@ -217,6 +217,57 @@ def test_code_digest_does_not_depend_on_where_the_code_lives(tmp_path, monkeypat
     assert first == second
 
 
+#: Imports a digest knowingly leaves out (file that imports -> module it imports), each with why.
+#: The mesh extraction shapes the implicit methods' completions but not their trainings; covering
+#: it moves every implicit checkpoint key, which is for the next retraining of them all.
+KNOWN_UNCOVERED = {("shapebench.implicit/completion.py", "shapebench.geometry.meshing")}
+
+
+def _imported_modules(path: Path) -> set[str]:
+    import ast
+
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            names.add(node.module)
+    return names
+
+
+def test_every_builtin_method_key_covers_the_code_its_plugin_imports():
+    """A method's code digest names the files its results come from: a plugin file that imports
+    another plugin's module, a shared non-core module (``shapebench.implicit``,
+    ``shapebench.geometry``) or a core training module must have it in its digest, or an edit
+    there would reuse stale checkpoints and cells. (PCN imported ``shapebench.implicit.networks``
+    uncovered until its standard configuration.) The contract (``shapebench.api``) and the
+    ``shapebench`` package's hook marker are exempt, and so are the imports of core files, which
+    stand for themselves by design (:mod:`shapebench.registry.code_digest`)."""
+    from shapebench.registry.code_digest import _module_sources, digest_sources
+    from shapebench.registry.discovery import get_registry
+
+    registry = get_registry()
+    missing = []
+    for name in registry.names("method"):
+        registration = registry.get("method", name)
+        if registration.plugin.distribution != "shapebench":
+            continue  # a third party's holes are its own
+        sources = digest_sources(registration.load())
+        covered = {path.resolve() for path in sources.values()}
+        for label, path in sorted(sources.items()):
+            if "/" not in label:
+                continue  # a core file (``module.py``): stands for itself
+            for module in sorted(_imported_modules(path)):
+                if module == "shapebench" or module.startswith("shapebench.api"):
+                    continue
+                if not module.startswith("shapebench"):
+                    continue  # torch, numpy: versions are keyed apart
+                files = {f.resolve() for _, f in _module_sources(module)}
+                if not files <= covered and (label, module) not in KNOWN_UNCOVERED:
+                    missing.append(f"{name}: {label} imports {module}, not in its digest")
+    assert not missing, "\n".join(sorted(set(missing)))
+
+
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_an_edited_plugin_does_not_reuse_its_stale_cells(shapebench, tmp_path):
     site = pip_install_to(tmp_path / "site", PLUGINS / "shapebench-example")

@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
+from shapebench_pcn.losses import alpha, sinkhorn_emd
 from shapebench_pcn.method import PCN
 from shapebench_pcn.module import PCNModule
 from shapebench_pcn.network import PCNNetwork, folding_grid
 
 from shapebench.api.types import Completion, ObjectData, ObjectRef
 from shapebench.metrics.chamfer import ChamferL2
+from shapebench.train.losses import chamfer_l1_halved
 
 
 def test_folding_grid_has_the_official_shape_and_spacing():
@@ -25,6 +26,25 @@ def test_folding_grid_has_the_official_shape_and_spacing():
     assert coarse.shape == (2, 32, 3) and fine.shape == (2, 512, 3)
     # Each coarse point owns 16 consecutive fine points, folded from its own grid.
     assert torch.allclose(fine.view(2, 32, 16, 3).mean(dim=2), coarse, atol=0.5)
+
+
+def _linear_widths(layers: torch.nn.Module) -> list[int]:
+    return [m.out_features for m in layers.modules() if isinstance(m, torch.nn.Linear)]
+
+
+def _weights_outside_coarse(net: torch.nn.Module) -> int:
+    return sum(p.numel() for n, p in net.named_parameters() if not n.startswith("coarse"))
+
+
+def test_decoder_width_sizes_the_coarse_decoder_only():
+    """``decoder_width`` (standard: 768, for weights that ship under 5 MB) changes the two hidden
+    layers of the coarse decoder and nothing else; the default is the official 1024."""
+    official = PCNNetwork(feature=256, num_coarse=256, grid_size=4)
+    narrow = PCNNetwork(feature=256, num_coarse=256, grid_size=4, decoder_width=768)
+    assert _linear_widths(narrow.coarse) == [768, 768, 3 * 256]
+    assert _linear_widths(official.coarse) == [1024, 1024, 3 * 256]
+    assert _weights_outside_coarse(narrow) == _weights_outside_coarse(official)
+    assert narrow(torch.randn(2, 50, 3))[1].shape == (2, 4096, 3)
 
 
 def test_emd_and_chamfer_on_known_cases():

@@ -1,4 +1,5 @@
-"""PCN's losses: an approximate EMD on the coarse cloud and the halved Chamfer on the fine one.
+"""PCN's coarse loss, an approximate EMD, and the weight schedule of its fine term (the fine term,
+the halved Chamfer, is shared with PoinTr: :func:`shapebench.train.losses.chamfer_l1_halved`).
 
 The official coarse term is the EMD of Fan et al.'s ``approxmatch`` CUDA kernel (an iterative
 soft assignment). Here it is approximated with entropy-regularised optimal transport (log-domain
@@ -57,12 +58,6 @@ def _sinkhorn_plan_log(cost: torch.Tensor, eps: float, iterations: int) -> torch
         u = log_mu - torch.logsumexp(log_k + v[:, None, :], dim=2)
         v = log_mu - torch.logsumexp(log_k + u[:, :, None], dim=1)
     return torch.exp(log_k + u[:, :, None] + v[:, None, :])
-
-
-def chamfer_l1_halved(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """PCN's CD: (mean_a min ||a - b|| + mean_b min ||a - b||) / 2, unsquared, (B,)."""
-    d = torch.cdist(a, b)
-    return 0.5 * (d.min(dim=2).values.mean(dim=1) + d.min(dim=1).values.mean(dim=1))
 
 
 def alpha(step: int, boundaries: tuple[int, ...] = (10_000, 20_000, 50_000)) -> float:

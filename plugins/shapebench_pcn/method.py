@@ -25,6 +25,7 @@ from shapebench.train.lightning_method import LightningMethod
 @dataclass(frozen=True)
 class PCNOptions:
     feature: int = option(1024, "global feature size (1024)")
+    decoder_width: int = option(1024, "width of the coarse decoder's two hidden layers (1024)")
     num_coarse: int = option(1024, "coarse output points (1024)")
     grid_size: int = option(4, "folding grid per axis (4: 16 points)")
     grid_scale: float = option(0.05, "folding grid half-width")
@@ -50,6 +51,13 @@ class PCN(LightningMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PCNOptions
     module_path = "shapebench_pcn.module:PCNModule"
+    #: The shared Chamfer loss, and ``shapebench.implicit`` (the network's ``mlp``, the context
+    #: stacking of ``encode``): both shape its results, so both are part of its keys.
+    code_modules = (
+        *LightningMethod.code_modules,
+        "shapebench.train.losses",
+        "shapebench.implicit.networks",
+    )
     #: Tiny options for ``shapebench check``: a small network, one epoch.
     check_options = {
         "feature": 32,

@@ -6,7 +6,8 @@ import torch
 
 from shapebench.train.lightning_fit import step_generator
 from shapebench.train.lightning_module import OptionsModule
-from shapebench_pcn.losses import alpha, chamfer_l1_halved, sinkhorn_emd
+from shapebench.train.losses import chamfer_l1_halved
+from shapebench_pcn.losses import alpha, sinkhorn_emd
 from shapebench_pcn.method import PCNOptions
 from shapebench_pcn.network import PCNNetwork
 
@@ -20,7 +21,9 @@ class PCNModule(OptionsModule):
     def __init__(self, options: PCNOptions | None = None, n_shapes: int = 0, **saved) -> None:
         super().__init__(options, n_shapes, **saved)
         o = self.options
-        self.network = PCNNetwork(o.feature, o.num_coarse, o.grid_size, o.grid_scale)
+        self.network = PCNNetwork(
+            o.feature, o.num_coarse, o.grid_size, o.grid_scale, o.decoder_width
+        )
 
     def losses(self, points: torch.Tensor, target: torch.Tensor) -> dict[str, torch.Tensor]:
         coarse, fine = self.network(points)

@@ -2,10 +2,11 @@
 Xavier-uniform weights and zero biases.
 
 Encoder: per-point 3 -> 128 -> 256, max-pooled global feature concatenated back to every point,
-512 -> 512 -> ``feature``, max-pooled again. Decoder: fully connected ``feature`` -> 1024 -> 1024 ->
-3 * ``num_coarse`` (the coarse cloud), then folding: every coarse point is repeated once per cell
-of a ``grid_size`` x ``grid_size`` grid spanning [-grid_scale, grid_scale]^2; [grid, coarse point,
-global feature] -> 512 -> 512 -> 3, added to the coarse point (the fine cloud).
+512 -> 512 -> ``feature``, max-pooled again. Decoder: fully connected ``feature`` ->
+``decoder_width`` -> ``decoder_width`` -> 3 * ``num_coarse`` (the coarse cloud; the official
+width is 1024), then folding: every coarse point is repeated once per cell of a ``grid_size`` x
+``grid_size`` grid spanning [-grid_scale, grid_scale]^2; [grid, coarse point, global feature] ->
+512 -> 512 -> 3, added to the coarse point (the fine cloud).
 """
 
 from __future__ import annotations
@@ -30,12 +31,13 @@ class PCNNetwork(nn.Module):
         num_coarse: int = 1024,
         grid_size: int = 4,
         grid_scale: float = 0.05,
+        decoder_width: int = 1024,
     ) -> None:
         super().__init__()
         self.num_coarse = num_coarse
         self.encoder_0 = mlp([3, 128, 256])
         self.encoder_1 = mlp([512, 512, feature])
-        self.coarse = mlp([feature, 1024, 1024, 3 * num_coarse])
+        self.coarse = mlp([feature, decoder_width, decoder_width, 3 * num_coarse])
         self.folding = mlp([2 + 3 + feature, 512, 512, 3])
         self.register_buffer("grid", folding_grid(grid_size, grid_scale))
         for m in self.modules():

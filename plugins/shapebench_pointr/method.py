@@ -63,8 +63,13 @@ class PoinTr(LightningMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PoinTrOptions
     module_path = "shapebench_pointr.module:PoinTrModule"
-    #: PCN's halved Chamfer is the loss: its package is part of the keys.
-    code_modules = (*LightningMethod.code_modules, "shapebench_pcn.losses")
+    #: The halved Chamfer (its loss) and ``shapebench.implicit`` (the context stacking of
+    #: ``encode``) shape its results: both are part of its keys.
+    code_modules = (
+        *LightningMethod.code_modules,
+        "shapebench.train.losses",
+        "shapebench.implicit.completion",
+    )
     #: Tiny options for ``shapebench check``: a small network, one epoch.
     check_options = {
         "dim": 16,

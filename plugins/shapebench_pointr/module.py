@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import torch
-from shapebench_pcn.losses import chamfer_l1_halved
 
 from shapebench.train.lightning_fit import step_generator
 from shapebench.train.lightning_module import OptionsModule
+from shapebench.train.losses import chamfer_l1_halved
 from shapebench_pointr.method import PoinTrOptions
 from shapebench_pointr.network import PoinTrNetwork
 

@@ -56,12 +56,18 @@ def _digest_files(named: tuple[tuple[str, Path], ...]) -> str:
     return h.hexdigest()[:16]
 
 
-def code_digest(cls: type) -> str:
-    """SHA-256 (16 hex digits) over the source files ``cls``'s behaviour comes from; it depends
-    on the files' contents and their names within their packages, not on where they live."""
+def digest_sources(cls: type) -> dict[str, Path]:
+    """The source files :func:`code_digest` covers for ``cls``, by their installation-independent
+    names (``package/relative/path.py``, or ``module.py`` for a core module)."""
     modules = {c.__module__ for c in inspect.getmro(cls)} - _EXCLUDED
     modules |= set(getattr(cls, "code_modules", ()) or ())
     named: dict[str, Path] = {}
     for name in sorted(modules):
         named.update(_module_sources(name))
-    return _digest_files(tuple(sorted(named.items())))
+    return named
+
+
+def code_digest(cls: type) -> str:
+    """SHA-256 (16 hex digits) over the source files ``cls``'s behaviour comes from; it depends
+    on the files' contents and their names within their packages, not on where they live."""
+    return _digest_files(tuple(sorted(digest_sources(cls).items())))
