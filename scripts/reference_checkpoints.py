@@ -130,25 +130,15 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     from shapebench.config import make_settings
-    from shapebench.registry.discovery import get_registry
-    from shapebench.registry.resolve import resolve_dataset, resolve_method
     from shapebench.store.provenance import git_commit
     from shapebench.sweeps.spec import load_sweep, sweep_methods
     from shapebench.train.references import INFO_FILE, SHIPPED, export
-    from shapebench.train.training import (
-        apply_trainer,
-        checkpoint_dir,
-        checkpoint_key,
-        profile_trainer,
-        read_done,
-    )
+    from shapebench.train.training import checkpoint_dir, read_done, reference_training
 
     os.environ["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = "none"  # train, never install
     settings = make_settings(None, None, args.profile, args.workspace)
-    registry = get_registry()
     default = load_sweep(ROOT / "configs" / "sweeps" / "default.yaml")
     names = args.methods.split(",") if args.methods else [m.name for m in sweep_methods(default)]
-    dataset = resolve_dataset(registry, DATASET, settings, None, {})
     target = SHIPPED
     head = git_commit()
     early = tree_problem(head)
@@ -160,17 +150,16 @@ def main(argv: list[str] | None = None) -> None:
     finished = []
     seeds = [int(seed) for seed in args.seeds.split(",")]
     for name, seed in [(name, seed) for name in names for seed in seeds]:
-        method = resolve_method(registry, name, settings, {})
+        training = reference_training(name, DATASET, args.profile, seed, Path(args.workspace))
+        method, key = training.method, training.key
         if not method.cls.trains:
             continue
-        trainer = profile_trainer(settings, seed)
-        method = apply_trainer(method, trainer)
-        key = checkpoint_key(method, dataset, trainer)
         family = method.cls.checkpoint_family or method.name
         if key in done_keys.setdefault(family, set()):
             continue  # msc-noopt: msc's checkpoint
         workdir = checkpoint_dir(settings, method, key)
-        command = ["shapebench", "train", "-m", name, "-d", DATASET, "--retrain"]
+        # one device: the key reference_training gives (the world size is part of every key)
+        command = ["shapebench", "train", "-m", name, "-d", DATASET, "--devices", "1", "--retrain"]
         if seed:
             command += ["--seed", str(seed)]
         if args.profile:

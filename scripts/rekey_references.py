@@ -44,6 +44,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def keys_now(requests: list[dict]) -> list[str]:
     """The checkpoint key of each {method, dataset, profile, seed}, by the code imported here
     (one device, as the references are trained)."""
+    # Spelled out rather than shapebench.train.training.reference_training: keys_at runs this in
+    # an earlier commit's tree, which may predate that helper.
     from shapebench.config import make_settings
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method

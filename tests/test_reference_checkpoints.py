@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import replace
 
 import pandas as pd
 import pytest
@@ -74,23 +73,10 @@ def test_the_default_profile_still_resolves_to_a_shipped_reference(name, tmp_pat
     """A change to a shipped method's code, its default options or the synthetic data changes the
     key: the quickstart would then train that method locally (minutes), and the reference would
     no longer be what the tables say. Retrain it (scripts/reference_checkpoints.py) and commit."""
-    from shapebench.config import make_settings
-    from shapebench.registry.discovery import get_registry
-    from shapebench.registry.resolve import resolve_dataset, resolve_method
-    from shapebench.train.training import (
-        apply_trainer,
-        checkpoint_key,
-        find_reference,
-        profile_trainer,
-    )
+    from shapebench.train.training import find_reference, reference_training
 
-    settings = make_settings(workspace=tmp_path, cache_dir=tmp_path / "cache", profile="quick")
-    registry = get_registry()
-    method = resolve_method(registry, name, settings, {})
-    dataset = resolve_dataset(registry, "synthetic", settings, None, {})
-    # one device, as the references were trained (a multi-GPU machine's "auto" would count more)
-    trainer = replace(profile_trainer(settings, seed=0), devices=1)
-    key = checkpoint_key(apply_trainer(method, trainer), dataset, trainer)
+    training = reference_training(name, "synthetic", None, 0, tmp_path, tmp_path / "cache")
+    method, key = training.method, training.key
     # the lookup a run makes, so a reference it would not use does not count either
     assert find_reference(method, key) is not None, (
         f"{name}'s default-profile key {key} has no shipped reference; retrain it: "
@@ -101,21 +87,18 @@ def test_the_default_profile_still_resolves_to_a_shipped_reference(name, tmp_pat
 def test_every_shipped_reference_is_still_the_key_of_its_profile_and_seed(tmp_path):
     """Any profile's, any seed's: a reference whose method, profile or data changed since it was
     trained would never be used again (and its numbers would describe code that is gone)."""
-    from shapebench.config import make_settings
-    from shapebench.registry.discovery import get_registry
-    from shapebench.registry.resolve import resolve_dataset, resolve_method
-    from shapebench.train.training import apply_trainer, checkpoint_key, profile_trainer
+    from shapebench.train.training import reference_training
 
-    registry = get_registry()
     for ref in _shipped():
         info = ref.info
-        settings = make_settings(
-            workspace=tmp_path, cache_dir=tmp_path / "cache", profile=info["profile"]
-        )
-        method = resolve_method(registry, info["method"], settings, {})
-        dataset = resolve_dataset(registry, info["dataset"], settings, None, {})
-        trainer = replace(profile_trainer(settings, seed=info["seed"]), devices=1)
-        key = checkpoint_key(apply_trainer(method, trainer), dataset, trainer)
+        key = reference_training(
+            info["method"],
+            info["dataset"],
+            info["profile"],
+            info["seed"],
+            tmp_path,
+            tmp_path / "cache",
+        ).key
         assert key == info["key"] == ref.folder.name, (
             f"{ref.folder}: {info['method']} at profile {info['profile']!r}, seed "
             f"{info['seed']} now has key {key}; retrain it: python "

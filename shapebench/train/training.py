@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 import warnings
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -131,6 +131,43 @@ def checkpoint_key(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOpt
             "trainer": training_identity(method, trainer),
         }
     )
+
+
+@dataclass(frozen=True)
+class ReferenceTraining:
+    """How a reference checkpoint of a method is trained: the method at its profile's options,
+    the dataset, the profile's trainer on one device, and the key they give."""
+
+    settings: Settings
+    method: ResolvedMethod
+    dataset: Dataset
+    trainer: TrainerOptions
+    key: str
+
+
+def reference_training(
+    name: str,
+    dataset: str,
+    profile: str | None,
+    seed: int,
+    workspace: Path,
+    cache_dir: Path | None = None,
+) -> ReferenceTraining:
+    """The training behind ``name``'s reference at ``profile`` (None: the default) and ``seed``
+    on ``dataset``, with no command-line overrides. One device, as the references are trained
+    (``shapebench train --devices 1``): "auto" would count every GPU of a multi-GPU machine, and
+    the world size is part of the key. ``workspace`` and ``cache_dir`` (None: the configured
+    cache) are the settings' store and cache."""
+    from shapebench.config import make_settings
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+
+    settings = make_settings(None, cache_dir, profile, workspace)
+    registry = get_registry()
+    trainer = replace(profile_trainer(settings, seed), devices=1)
+    method = apply_trainer(resolve_method(registry, name, settings, {}), trainer)
+    data = resolve_dataset(registry, dataset, settings, None, {})
+    return ReferenceTraining(settings, method, data, trainer, checkpoint_key(method, data, trainer))
 
 
 def checkpoint_dir(settings: Settings, method: ResolvedMethod, key: str) -> Path:
