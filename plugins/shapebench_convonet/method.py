@@ -72,8 +72,8 @@ class ConvONet(ImplicitMethod):
     )
     Options = ConvONetOptions
     module_path = "shapebench_convonet.module:ConvONetModule"
-    #: OccNet's ResnetBlockFC is part of the network: its package is part of the keys.
-    code_modules = (*ImplicitMethod.code_modules, "shapebench_occnet.network")
+    #: OccNet's ResnetBlockFC (shared from shapebench.train.blocks) is part of the network.
+    code_modules = (*ImplicitMethod.code_modules, "shapebench.train.blocks")
     #: Tiny options for ``shapebench check``: near-surface queries and a threshold of 0.3, so
     #: that a network trained 30 steps has a surface to mesh. Its planes start almost blind to
     #: the points (empty cells are 0, the U-Net's biases dominate), so the first steps only learn

@@ -23,9 +23,10 @@ maps its unit cube: p / (2 (1 + padding) + 1e-5) + 0.5, clamped below 1, padding
 from __future__ import annotations
 
 import torch
-from shapebench_occnet.network import ResnetBlockFC
 from torch import nn
 from torch.nn import functional as F
+
+from shapebench.train.blocks import ResnetBlockFC
 
 #: The planes and the coordinate axes each spans (official: xz, xy, yz).
 PLANES = {"xz": (0, 2), "xy": (0, 1), "yz": (1, 2)}

@@ -61,6 +61,11 @@ class OccNetOptions:
     steps: int = steps_option()
     batch_shapes: int = option(64, "objects per batch (64)")
     lr: float = option(1e-4, "learning rate (1e-4)")
+    precise_bn_batches: int = option(
+        0,
+        "training batches the BatchNorm statistics are recomputed over once training ends "
+        "(0: the running averages as trained, official)",
+    )
     threshold: float = completion_option(
         0.2, "occupancy probability of the surface (official: 0.2)"
     )
@@ -80,6 +85,13 @@ class OccNet(ImplicitMethod):
     )
     Options = OccNetOptions
     module_path = "shapebench_occnet.module:OccNetModule"
+    #: Its encoder's residual blocks (shared with ConvONet) and the recomputation of its
+    #: decoder's BatchNorm statistics when training ends.
+    code_modules = (
+        *ImplicitMethod.code_modules,
+        "shapebench.train.blocks",
+        "shapebench.train.batchnorm",
+    )
     #: Tiny options for ``shapebench check``. Three epochs and a threshold of 0.5: after fewer
     #: steps, or at the paper's 0.2, the tiny network has no surface to mesh.
     check_options = {

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch.nn import functional as F
 
+from shapebench.train.batchnorm import is_final_step, recalibrate_batchnorm
 from shapebench.train.lightning_module import OptionsModule
 from shapebench_occnet.method import OccNetOptions
 from shapebench_occnet.network import DecoderBatchNorm, DecoderCBatchNorm, ResnetPointnet
@@ -31,15 +32,30 @@ class OccNetModule(OptionsModule):
         bce = F.binary_cross_entropy_with_logits(logits, occupancy[..., 3], reduction="none")
         return bce.sum(dim=1).mean()
 
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+    def encoder_input(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """A training batch's encoder input: its first ``input_points`` points, noised."""
         o = self.options
         points = batch["points"][:, : o.input_points]
-        points = points + o.input_noise * torch.randn_like(points)  # as the paper and official
+        return points + o.input_noise * torch.randn_like(points)  # as the paper and official
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        points = self.encoder_input(batch)
         loss = self.loss(points, batch["occupancy"])
         self.log(
             "train/loss", loss, on_step=False, on_epoch=True, batch_size=len(points), sync_dist=True
         )
         return loss
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        # The decoder's BatchNorm statistics, recomputed for the final weights before the last
+        # checkpoint is written (shapebench.train.batchnorm says why).
+        if self.options.precise_bn_batches and is_final_step(self.trainer):
+            recalibrate_batchnorm(
+                self,
+                lambda b, _gen: self.loss(self.encoder_input(b), b["occupancy"]),
+                self.trainer.train_dataloader,
+                self.options.precise_bn_batches,
+            )
 
     def configure_optimizers(self):
         return torch.optim.Adam(self.parameters(), lr=self.options.lr)  # no schedule (official)

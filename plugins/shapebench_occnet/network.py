@@ -17,19 +17,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-
-class ResnetBlockFC(nn.Module):
-    def __init__(self, size_in: int, size_out: int) -> None:
-        super().__init__()
-        size_h = min(size_in, size_out)
-        self.fc_0 = nn.Linear(size_in, size_h)
-        self.fc_1 = nn.Linear(size_h, size_out)
-        self.shortcut = nn.Linear(size_in, size_out, bias=False) if size_in != size_out else None
-        nn.init.zeros_(self.fc_1.weight)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        dx = self.fc_1(F.relu(self.fc_0(F.relu(x))))
-        return (self.shortcut(x) if self.shortcut is not None else x) + dx
+from shapebench.train.blocks import ResnetBlockFC
 
 
 class ResnetPointnet(nn.Module):

@@ -55,6 +55,11 @@ class PoinTrOptions:
     )
     lr_floor: float = option(0.02, "lowest lr factor (0.02)")
     grad_clip: float = option(10.0, "gradient norm clip (10)")
+    precise_bn_batches: int = option(
+        0,
+        "training batches the BatchNorm statistics are recomputed over once training ends "
+        "(0: the running averages as trained, official)",
+    )
 
 
 class PoinTr(LightningMethod):
@@ -67,6 +72,7 @@ class PoinTr(LightningMethod):
     #: ``encode``) shape its results: both are part of its keys.
     code_modules = (
         *LightningMethod.code_modules,
+        "shapebench.train.batchnorm",
         "shapebench.train.losses",
         "shapebench.implicit.completion",
     )

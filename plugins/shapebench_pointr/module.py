@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 
+from shapebench.train.batchnorm import is_final_step, recalibrate_batchnorm
 from shapebench.train.lightning_fit import step_generator
 from shapebench.train.lightning_module import OptionsModule
 from shapebench.train.losses import chamfer_l1_halved
@@ -35,9 +36,13 @@ class PoinTrModule(OptionsModule):
             "fine": chamfer_l1_halved(fine, target).mean(),
         }
 
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+    def context_size(self, generator: torch.Generator) -> int:
+        """The context size of one batch, drawn from ``context_sizes``."""
         sizes = self.options.context_sizes
-        k = sizes[int(torch.randint(len(sizes), (1,), generator=step_generator(self)))]
+        return sizes[int(torch.randint(len(sizes), (1,), generator=generator))]
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        k = self.context_size(step_generator(self))
         terms = self.losses(batch["points"][:, :k], batch["complete"])
         loss = terms["coarse"] + terms["fine"]
         self.log_dict(
@@ -52,6 +57,17 @@ class PoinTrModule(OptionsModule):
             sync_dist=True,
         )
         return loss
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        # The folding head's BatchNorm statistics, recomputed for the final weights before the
+        # last checkpoint is written (shapebench.train.batchnorm says why).
+        if self.options.precise_bn_batches and is_final_step(self.trainer):
+            recalibrate_batchnorm(
+                self.network,
+                lambda b, gen: self.network(b["points"][:, : self.context_size(gen)]),
+                self.trainer.train_dataloader,
+                self.options.precise_bn_batches,
+            )
 
     def configure_gradient_clipping(
         self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None
