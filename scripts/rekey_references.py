@@ -92,6 +92,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--from-commit", help="the commit whose keys the references hold")
     parser.add_argument("--why", help="why the training is unchanged (recorded)")
     parser.add_argument("--dry-run", action="store_true", help="report, change nothing")
+    parser.add_argument(
+        "--methods",
+        help="comma-separated: move only these methods' references (the others' training "
+        "may have changed along with their key: retrain those)",
+    )
     parser.add_argument("--keys-of", help=argparse.SUPPRESS)  # the child of keys_at
     args = parser.parse_args(argv)
     if args.keys_of:
@@ -108,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
 
     folders = sorted(p.parent for p in SHIPPED.glob(f"*/*/{INFO_FILE}"))
     infos = [json.loads((f / INFO_FILE).read_text()) for f in folders]
+    if args.methods:
+        chosen = set(args.methods.split(","))
+        kept = [n for n, info in enumerate(infos) if info["method"] in chosen]
+        folders, infos = [folders[n] for n in kept], [infos[n] for n in kept]
     requests = [{k: i[k] for k in ("method", "dataset", "profile", "seed")} for i in infos]
     now = keys_now(requests)
     moved = [n for n, (info, new) in enumerate(zip(infos, now, strict=True)) if info["key"] != new]
