@@ -56,25 +56,15 @@ def test_a_short_loader_is_cycled_and_a_network_without_batchnorm_is_left_alone(
 
 def _train_pointr(precise: int):
     import pytorch_lightning as pl
-    from shapebench_pointr.method import PoinTrOptions
+    from shapebench_pointr.method import PoinTr, PoinTrOptions
     from shapebench_pointr.module import PoinTrModule
     from torch.utils.data import DataLoader
 
     gen = torch.Generator().manual_seed(2)
     shapes = [torch.randn(120, 3, generator=gen) for _ in range(6)]
     data = [{"points": s[:20], "complete": s} for s in shapes]
-    options = PoinTrOptions(
-        dim=16,
-        heads=2,
-        encoder_depth=1,
-        decoder_depth=1,
-        num_query=4,
-        fold_step=2,
-        global_dim=32,
-        proxies=8,
-        context_sizes=(20,),
-        precise_bn_batches=precise,
-    )
+    sizes = {"context_sizes": (20,), "precise_bn_batches": precise}
+    options = PoinTrOptions(**{**PoinTr.check_options, **sizes})  # its tiny network
     torch.manual_seed(0)
     module = PoinTrModule(options)
     trainer = pl.Trainer(
