@@ -100,6 +100,21 @@ def test_plan_lists_missing_cells_then_nothing_once_the_sweep_ran(shapebench, tm
     assert res.returncode == 0 and "nothing to submit" in res.stdout, res.stderr
 
 
+def test_status_tells_trainings_shipped_weights_serve_from_trainings_to_run(shapebench, tmp_path):
+    """MSC's quick reference ships (shapebench/reference_checkpoints), PCN's does not: --status
+    must not count installing shipped weights as a training still to run."""
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(
+        "name: shipped\nmethods: [msc, pcn]\ndatasets: [synthetic]\nsplits: [trained]\n"
+        "contexts: [50]\n"
+    )
+    res = shapebench("sweep", str(sweep), "--status")
+    assert res.returncode == 0, res.stderr
+    assert "1 trainings missing: train pcn on synthetic seed=0" in res.stdout
+    assert "1 trainings served by shipped reference weights" in res.stdout
+    assert "train msc on synthetic seed=0" in res.stdout.split("shipped reference weights")[1]
+
+
 def test_run_through_the_cluster_launcher_computes_the_cells_run_inline_finds(shapebench):
     """`run --launcher submitit-local` logs under the same cell keys as an inline `run`."""
     sb = shapebench

@@ -131,7 +131,10 @@ def test_the_data_scaling_cross_at_4x_is_the_standard_profiles_seed_0(tmp_path):
             out[m.name] = checkpoint_key(apply_trainer(method, trainer), data, trainer)
         return out
 
-    four_x = {"igr": 10800, "deepsdf": 10800, "msc": 10800, "msc-noopt": 10800}
+    # Not IGR and DeepSDF: the standard profile gives the auto-decoders 64 shapes per batch so
+    # that each code moves as often as at quick (configs/profiles/standard.yaml), where the
+    # data-scaling sweep keeps one recipe along its axes.
+    four_x = {"msc": 10800, "msc-noopt": 10800}
     four_x |= {"msc-hier": 10800, "msc-hier-noopt": 10800, "occnet": 3600, "convonet": 3600}
     four_x |= {"pointr": 3600}
     cross = [

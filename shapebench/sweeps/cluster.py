@@ -608,9 +608,14 @@ def print_status(statuses: list[CellStatus], plan: SweepPlan, echo: Callable[[st
     shown = [f"{counts[k]} {k}" for k in order if k in counts]
     shown += [f"{v} {k}" for k, v in counts.items() if k not in order]
     echo(f"{len(statuses)} cells: " + ", ".join(shown))
-    if plan.trainings:
+    to_train = [t for t in plan.trainings if not t.shipped]
+    shipped = [t for t in plan.trainings if t.shipped]
+    if to_train:
+        echo(f"{len(to_train)} trainings missing: " + ", ".join(t.name for t in to_train))
+    if shipped:
         echo(
-            f"{len(plan.trainings)} trainings missing: " + ", ".join(t.name for t in plan.trainings)
+            f"{len(shipped)} trainings served by shipped reference weights (installed when their "
+            "cells run; --retrain trains them instead): " + ", ".join(t.name for t in shipped)
         )
     for s in statuses:
         if s.state == "failed" and s.job is not None:

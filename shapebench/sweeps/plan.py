@@ -20,7 +20,7 @@ from shapebench.evaluation.orchestrate import resolve_request, seed_plans
 from shapebench.evaluation.runner import Runner, planned_cells
 from shapebench.store.tracking import Tracker, experiment_name
 from shapebench.sweeps.spec import SweepSpec, pairs, request, sweep_methods
-from shapebench.train.training import checkpoint_dir, read_done
+from shapebench.train.training import checkpoint_dir, find_reference, read_done
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,9 @@ class TrainingTask:
     key: str
     label: str
     dataset: str
+    #: Reference weights for ``key`` ship with shapebench: the task installs them in seconds
+    #: (unless the sweep runs with ``--retrain``) instead of training.
+    shipped: bool = False
 
     @property
     def name(self) -> str:
@@ -116,7 +119,15 @@ def plan_sweep(
             elif needed:
                 trainings.setdefault(
                     training,
-                    TrainingTask(mi, di, sp.seed, training, sp.variant.label, ds.name),
+                    TrainingTask(
+                        mi,
+                        di,
+                        sp.seed,
+                        training,
+                        sp.variant.label,
+                        ds.name,
+                        shipped=find_reference(sp.method, training) is not None,
+                    ),
                 )
     out.trainings = list(trainings.values())
     return out
