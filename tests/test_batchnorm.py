@@ -4,6 +4,8 @@ changes; PoinTr's training recomputes them at its last step, its weights as with
 
 from __future__ import annotations
 
+from copy import deepcopy
+
 import pytest
 import torch
 from torch import nn
@@ -93,16 +95,20 @@ def test_pointr_recomputes_its_statistics_at_its_last_step_with_the_same_weights
             assert torch.equal(state[k], reference[k]), k  # the weights trained are the same
     assert any(not torch.equal(state[k], reference[k]) for k in running)
 
-    # The statistics are the final network's own over the first 3 training batches.
+    # The statistics are the final network's own over the first 3 training batches, every
+    # BatchNorm layer in training mode at once (as precise BN computes them: a layer sees its
+    # input normalised by the batch statistics of the layers before it), on a copy, whose own
+    # running averages this forward pass moves.
+    copy = deepcopy(precise)
     bn = precise.network.folding.fold1[1]
     outputs = []
-    hook = precise.network.folding.fold1[0].register_forward_hook(
+    hook = copy.network.folding.fold1[0].register_forward_hook(
         lambda m, i, o: outputs.append(o.detach())
     )
-    precise.eval()
+    copy.train()
     with torch.no_grad():
         for batch, _ in zip(loader, range(3), strict=False):
-            precise.network(batch["points"])
+            copy.network(batch["points"])
     hook.remove()
     means = torch.stack([o.mean(dim=(0, 2)) for o in outputs]).mean(dim=0)
     torch.testing.assert_close(bn.running_mean, means, rtol=1e-4, atol=1e-6)

@@ -9,6 +9,7 @@ import torch
 from shapebench_pointr.method import PoinTrOptions
 from shapebench_pointr.module import PoinTrModule
 from shapebench_pointr.network import (
+    Block,
     DGCNNGrouper,
     Folding,
     PoinTrNetwork,
@@ -52,6 +53,43 @@ def test_the_output_is_folded_points_then_the_input() -> None:
     assert torch.equal(fine[:, -20:], context)  # the observed points are kept exactly
     grid = Folding(8, 3).grid
     assert grid.shape == (2, 9) and grid.min() == -1 and grid.max() == 1
+
+
+def test_the_transformer_is_laid_out_and_initialised_as_the_official() -> None:
+    torch.manual_seed(0)
+    net = PoinTrNetwork(**{**TINY, "dim": 64, "depth": (2, 2)})
+    attention = [m for m in net.modules() if m.__class__.__name__ == "Attention"]
+    assert len(attention) == 2 + 2 * 2  # encoder self; decoder self and cross
+    assert all(
+        a.q.bias is None and a.kv.bias is None and a.proj.bias is not None for a in attention
+    )
+    # The geometry branches: the first block of each, and the first decoder block's cross too.
+    assert [b.geometry is not None for b in net.encoder] == [True, False]
+    assert [b.cross_geometry is not None for b in net.decoder] == [True, False]
+    # Truncated-normal (std 0.02) Linear weights in the transformer, Xavier in its 1x1 convs,
+    # PyTorch's default (uniform, bound 1/sqrt(fan_in)) in the rebuild layers.
+    mlp = net.encoder[0].mlp[0].weight
+    assert abs(mlp.std().item() - 0.02) < 0.002 and net.encoder[0].mlp[0].bias.abs().sum() == 0
+    conv = net.query_mlp[0].weight  # Xavier normal: std sqrt(2 / (fan_in + fan_out))
+    expected = (2 / sum(conv.shape)) ** 0.5
+    assert abs(conv.std().item() - expected) < 0.1 * expected
+    reduce = net.reduce_map.weight
+    assert reduce.abs().max() <= reduce.shape[1] ** -0.5 and reduce.std() > 0.03
+
+
+def test_the_first_decoder_block_reads_the_encoder_centres_nearest_each_query() -> None:
+    torch.manual_seed(0)
+    block = Block(16, 2, 2.0, cross=True, geometric=True).eval()
+    q, q_xyz = torch.randn(1, 4, 16), torch.randn(1, 4, 3)
+    memory, memory_xyz = torch.randn(1, 12, 16), torch.randn(1, 12, 3)
+    out = block(q, q_xyz, memory, memory_xyz)
+    # Attention ignores where the memory tokens sit; the cross geometry branch does not.
+    moved = block(q, q_xyz, memory, memory_xyz.flip(1))
+    assert not torch.allclose(out, moved)
+    plain = Block(16, 2, 2.0, cross=True, geometric=False).eval()
+    assert torch.allclose(
+        plain(q, q_xyz, memory, memory_xyz), plain(q, q_xyz, memory, memory_xyz.flip(1))
+    )
 
 
 def test_optimiser_groups_and_schedule() -> None:

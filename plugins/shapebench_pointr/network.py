@@ -5,20 +5,29 @@
   in xyz; the edge feature [f_j - f_i, f_i]; a 1x1 convolution, GroupNorm(4), LeakyReLU(0.2), max
   over the neighbours; 32, 64, 64, 128 channels), farthest-point sampling 512 and then 128
   centres between them (fewer when the context has fewer points: 50 points give 50 proxies);
-* :class:`GeometryAwareTransformer`: tokens = Linear(128 -> C) of the proxies' features; an
-  encoder of pre-LayerNorm blocks (self-attention, MLP of ratio 2) with the centres' embedding
-  (3 -> 128 -> C) added before every block; a decoder of blocks (self-attention, cross-attention
-  to the encoder, MLP). The first block of each also runs a geometry branch (k = 8 nearest
-  centres: [f_j - f_i, f_i] -> Linear(2C -> C), LeakyReLU, max) whose output is concatenated
-  with the attention's and merged by Linear(2C -> C);
-* queries: the encoder's tokens -> 1x1 convolutions C -> 1024 -> 1024, max-pooled to a global
-  feature, an MLP 1024 -> 1024 -> 3M predicting M coarse centres; each query's feature is an MLP
-  of [global, centre] (1027 -> 1024 -> 1024 -> C);
-* rebuild: Linear(1024 + C + 3 -> C) of [the decoder's max-pooled global feature, the query's
-  feature, its centre], then FoldingNet: a step x step grid in [-1, 1]^2 folded twice by 1x1
-  convolutions (C + 2 -> 256 -> 128 -> 3, then C + 3 -> 256 -> 128 -> 3, BatchNorm and ReLU)
-  into offsets from the centre. The output is the folded points and the input; the coarse cloud
-  is the centres and a farthest-point sample of the input.
+* the transformer: tokens = 1x1 convolutions 128 -> C -> C (BatchNorm, LeakyReLU(0.2)) of the
+  proxies' features; an encoder of pre-LayerNorm blocks (self-attention, MLP of ratio 2) with
+  the centres' embedding (3 -> 128 -> C, BatchNorm, LeakyReLU(0.2)) added before every block; a
+  decoder of blocks (self-attention, cross-attention to the encoder, MLP). Attention maps q, k,
+  v without bias (the official ``qkv_bias=False``). The first block of each also runs a geometry
+  branch (k = 8 nearest centres: [f_j - f_i, f_i] -> Linear(2C -> C), LeakyReLU, max) whose
+  output is concatenated with the attention's and merged by Linear(2C -> C); the first decoder
+  block runs one for its cross-attention too (the 8 encoder centres nearest each query centre);
+* queries: the encoder's tokens -> 1x1 convolutions C -> 1024 -> 1024 (BatchNorm, LeakyReLU),
+  max-pooled to a global feature, an MLP 1024 -> 1024 -> 3M predicting M coarse centres; each
+  query's feature is an MLP of [global, centre] (1027 -> 1024 -> 1024 -> C);
+* rebuild: the decoder's tokens -> 1x1 convolutions C -> 1024 -> 1024 (BatchNorm, LeakyReLU),
+  max-pooled; Linear(1024 + C + 3 -> C) of [that global feature, the query's feature, its
+  centre], then FoldingNet: a step x step grid in [-1, 1]^2 folded twice by 1x1 convolutions
+  (C + 2 -> 256 -> 128 -> 3, then C + 3 -> 256 -> 128 -> 3, BatchNorm and ReLU) into offsets
+  from the centre. The output is the folded points and the input; the coarse cloud is the
+  centres and a farthest-point sample of the input.
+
+A 1x1 convolution over points is a Linear layer over tokens; :class:`TokenBatchNorm` takes its
+BatchNorm over every token of the batch, as BatchNorm1d does over (B, C, N). The official
+initialisation (:func:`official_init`) covers the grouper, the transformer and the query
+layers, as the official ``PCTransformer._init_weights`` does; the rebuild and folding layers
+keep PyTorch's defaults, as the official ``PoinTr`` module's do.
 
 ``global_dim`` (1024) is an option so that the CPU profile can shrink it with the width.
 """
@@ -105,47 +114,95 @@ class DGCNNGrouper(nn.Module):
         return q_xyz, f
 
 
+class TokenBatchNorm(nn.BatchNorm1d):
+    """BatchNorm1d over the tokens of (..., C): statistics over every token of the batch, as the
+    official BatchNorm1d after a 1x1 Conv1d takes them over (B, C, N)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward(x.reshape(-1, x.shape[-1])).view_as(x)
+
+
+def pointwise_mlp(cin: int, hidden: int, cout: int) -> nn.Sequential:
+    """The official 1x1 Conv1d(cin -> hidden), BatchNorm1d, LeakyReLU(0.2), Conv1d(hidden -> cout)
+    over tokens (B, N, C)."""
+    return nn.Sequential(
+        nn.Linear(cin, hidden), TokenBatchNorm(hidden), nn.LeakyReLU(0.2), nn.Linear(hidden, cout)
+    )
+
+
+class Attention(nn.Module):
+    """Multi-head scaled dot-product attention of ``query`` (B, M, C) over ``source`` (B, N, C):
+    q, k, v maps without bias (official ``qkv_bias=False``), an output projection with bias."""
+
+    def __init__(self, dim: int, heads: int) -> None:
+        super().__init__()
+        self.heads = heads
+        self.q = nn.Linear(dim, dim, bias=False)
+        self.kv = nn.Linear(dim, 2 * dim, bias=False)
+        self.proj = nn.Linear(dim, dim)
+
+    def forward(self, query: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
+        b, m, c = query.shape
+        h = self.heads
+        q = self.q(query).view(b, m, h, c // h).transpose(1, 2)
+        k, v = self.kv(source).view(b, source.shape[1], 2, h, c // h).permute(2, 0, 3, 1, 4)
+        # Spelled out rather than scaled_dot_product_attention, whose CPU kernels may pick a
+        # different reduction order with the thread count (trainings are bitwise repeatable).
+        weights = ((q @ k.transpose(-2, -1)) * (c // h) ** -0.5).softmax(dim=-1)
+        return self.proj((weights @ v).transpose(1, 2).reshape(b, m, c))
+
+
 class GeometryBranch(nn.Module):
-    """k nearest centres: [f_j - f_i, f_i] -> Linear(2C -> C), LeakyReLU(0.2), max over j."""
+    """For each query token i, its k nearest tokens j of ``source`` (by their centres):
+    [f_j - f_i, f_i] -> Linear(2C -> C), LeakyReLU(0.2), max over j."""
 
     def __init__(self, dim: int, k: int = 8) -> None:
         super().__init__()
         self.k = k
         self.linear = nn.Linear(2 * dim, dim)
 
-    def forward(self, x: torch.Tensor, xyz: torch.Tensor) -> torch.Tensor:
-        neighbours = gather_points(x, knn(xyz, xyz, self.k))
+    def forward(self, x, xyz, source=None, source_xyz=None) -> torch.Tensor:
+        source = x if source is None else source
+        source_xyz = xyz if source_xyz is None else source_xyz
+        neighbours = gather_points(source, knn(xyz, source_xyz, self.k))
         centre = x[:, :, None, :].expand_as(neighbours)
         out = F.leaky_relu(self.linear(torch.cat([neighbours - centre, centre], dim=-1)), 0.2)
         return out.max(dim=2).values
 
 
 class Block(nn.Module):
-    """A pre-LayerNorm transformer block: self-attention (with the geometry branch when
-    ``geometric``), cross-attention to ``memory`` when ``cross``, an MLP of ratio ``mlp_ratio``."""
+    """A pre-LayerNorm transformer block: self-attention, cross-attention to ``memory`` when
+    ``cross``, an MLP of ratio ``mlp_ratio``. When ``geometric``, each attention's output is
+    merged with a geometry branch's (official: the first block of the encoder and decoder)."""
 
     def __init__(self, dim: int, heads: int, mlp_ratio: float, cross: bool, geometric: bool):
         super().__init__()
         self.norm1 = nn.LayerNorm(dim)
-        self.attn = nn.MultiheadAttention(dim, heads, batch_first=True)
+        self.attn = Attention(dim, heads)
         self.geometry = GeometryBranch(dim) if geometric else None
         self.merge = nn.Linear(2 * dim, dim) if geometric else None
-        self.cross = nn.MultiheadAttention(dim, heads, batch_first=True) if cross else None
+        self.cross = Attention(dim, heads) if cross else None
         self.norm_q = nn.LayerNorm(dim) if cross else None
         self.norm_m = nn.LayerNorm(dim) if cross else None
+        self.cross_geometry = GeometryBranch(dim) if cross and geometric else None
+        self.cross_merge = nn.Linear(2 * dim, dim) if cross and geometric else None
         self.norm2 = nn.LayerNorm(dim)
         hidden = int(dim * mlp_ratio)
         self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(), nn.Linear(hidden, dim))
 
-    def forward(self, x, xyz, memory=None):
+    def forward(self, x, xyz, memory=None, memory_xyz=None):
         h = self.norm1(x)
-        attended = self.attn(h, h, h, need_weights=False)[0]
+        attended = self.attn(h, h)
         if self.geometry is not None:
             attended = self.merge(torch.cat([attended, self.geometry(h, xyz)], dim=-1))
         x = x + attended
         if self.cross is not None:
-            m = self.norm_m(memory)
-            x = x + self.cross(self.norm_q(x), m, m, need_weights=False)[0]
+            q, m = self.norm_q(x), self.norm_m(memory)
+            attended = self.cross(q, m)
+            if self.cross_geometry is not None:
+                local = self.cross_geometry(q, xyz, m, memory_xyz)
+                attended = self.cross_merge(torch.cat([attended, local], dim=-1))
+            x = x + attended
         return x + self.mlp(self.norm2(x))
 
 
@@ -199,17 +256,15 @@ class PoinTrNetwork(nn.Module):
         super().__init__()
         self.num_query = num_query
         self.grouper = DGCNNGrouper(first_sample, proxies)
-        self.input_proj = nn.Linear(128, dim)
-        self.pos_embed = nn.Sequential(nn.Linear(3, 128), nn.GELU(), nn.Linear(128, dim))
+        self.input_proj = pointwise_mlp(128, dim, dim)
+        self.pos_embed = pointwise_mlp(3, 128, dim)
         self.encoder = nn.ModuleList(
             Block(dim, heads, mlp_ratio, cross=False, geometric=i == 0) for i in range(depth[0])
         )
         self.decoder = nn.ModuleList(
             Block(dim, heads, mlp_ratio, cross=True, geometric=i == 0) for i in range(depth[1])
         )
-        self.increase_dim = nn.Sequential(
-            nn.Linear(dim, global_dim), nn.LeakyReLU(0.2), nn.Linear(global_dim, global_dim)
-        )
+        self.increase_dim = pointwise_mlp(dim, global_dim, global_dim)
         self.coarse_pred = nn.Sequential(
             nn.Linear(global_dim, global_dim), nn.ReLU(), nn.Linear(global_dim, 3 * num_query)
         )
@@ -220,11 +275,15 @@ class PoinTrNetwork(nn.Module):
             nn.LeakyReLU(0.2),
             nn.Linear(global_dim, dim),
         )
-        self.rebuild_dim = nn.Sequential(
-            nn.Linear(dim, global_dim), nn.LeakyReLU(0.2), nn.Linear(global_dim, global_dim)
-        )
+        self.rebuild_dim = pointwise_mlp(dim, global_dim, global_dim)
         self.reduce_map = nn.Linear(global_dim + dim + 3, dim)
         self.folding = Folding(dim, fold_step)
+        official_init(
+            [self.grouper, self.input_proj, self.pos_embed, self.encoder, self.increase_dim]
+            + [self.coarse_pred, self.query_mlp, self.decoder],
+            convolutions=[self.grouper.input_trans, self.input_proj, self.pos_embed]
+            + [self.increase_dim, self.query_mlp],
+        )
 
     def forward(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         b = points.shape[0]
@@ -239,7 +298,7 @@ class PoinTrNetwork(nn.Module):
             torch.cat([global_feature[:, None].expand(-1, self.num_query, -1), coarse], dim=-1)
         )
         for block in self.decoder:
-            q = block(q, coarse, memory=x)
+            q = block(q, coarse, memory=x, memory_xyz=centres)
         decoded = self.rebuild_dim(q).max(dim=1).values  # (B, G)
         rebuild = torch.cat([decoded[:, None].expand(-1, self.num_query, -1), q, coarse], dim=-1)
         feature = self.reduce_map(rebuild).reshape(b * self.num_query, -1)
@@ -250,3 +309,22 @@ class PoinTrNetwork(nn.Module):
             points, farthest_point_sample(points, min(self.num_query, points.shape[1]))
         )
         return torch.cat([coarse, sample], dim=1), torch.cat([fine, points], dim=1)
+
+
+def official_init(modules: list[nn.Module], convolutions: list[nn.Module]) -> None:
+    """The official ``PCTransformer._init_weights`` over ``modules``: Linear weights truncated
+    normal (std 0.02) with zero biases, LayerNorm and BatchNorm 1 and 0, and the Linear layers
+    under ``convolutions`` (the official 1x1 Conv1d ones) Xavier-normal weights (their biases
+    keep the default, as a Conv1d's do there)."""
+    conv = {id(m) for c in convolutions for m in c.modules() if isinstance(m, nn.Linear)}
+    for module in modules:
+        for m in module.modules():
+            if isinstance(m, nn.Linear) and id(m) in conv:
+                nn.init.xavier_normal_(m.weight)
+            elif isinstance(m, nn.Linear):
+                nn.init.trunc_normal_(m.weight, std=0.02)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+            elif isinstance(m, (nn.LayerNorm, nn.BatchNorm1d)):
+                nn.init.ones_(m.weight)
+                nn.init.zeros_(m.bias)
