@@ -105,9 +105,11 @@ def by_seed(board) -> list[str]:
     return lines
 
 
-def compare_before(now, before) -> list[str]:
-    """Each row of ``now`` against the row of the same label in ``before``, per context size."""
+def compare_before(now, before, renamed: dict[str, str] | None = None) -> list[str]:
+    """Each row of ``now`` against the row of the same label in ``before`` (or of the label
+    ``renamed`` gives it), per context size."""
     old = {r.label: r.variant for r in before.rows}
+    old |= {mine: old[theirs] for mine, theirs in (renamed or {}).items() if theirs in old}
     lines = [
         "now against before (wins: objects where now is lower)",
         f"{'row':<28} {'k':>5} {'before':>8} {'now':>8} {'wins':>7} {'p':>8}",
@@ -141,8 +143,20 @@ def main() -> None:
     parser.add_argument("--metric", default=None)
     parser.add_argument("--workspace", default=None)
     parser.add_argument("--before", default=None, help="another workspace to compare rows with")
+    parser.add_argument(
+        "--pair",
+        action="append",
+        default=[],
+        metavar="NOW=BEFORE",
+        help="pair the row labelled NOW with BEFORE's row labelled BEFORE (repeatable), e.g. "
+        "'pointr[weights=local]=pointr' for a local training against shipped weights",
+    )
     parser.add_argument("--by-seed", action="store_true", help="also each row's means per seed")
     args = parser.parse_args()
+    bad = [p for p in args.pair if "=" not in p.strip("=")]
+    if bad:
+        parser.error(f"--pair takes NOW=BEFORE, got {bad[0]!r}")
+    renamed = dict(p.rsplit("=", 1) for p in args.pair)
     tracker = Tracker(make_settings(workspace=args.workspace))
     board = build_board(tracker, args.dataset, args.split, args.reference, args.metric)
     if board is None or board.scored is None:
@@ -162,7 +176,7 @@ def main() -> None:
         if before is None or before.scored is None:
             raise SystemExit(f"no runs of {args.dataset}-{args.split} in {args.before}")
         print()
-        print("\n".join(compare_before(board, before)))
+        print("\n".join(compare_before(board, before, renamed)))
 
 
 if __name__ == "__main__":
