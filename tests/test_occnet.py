@@ -77,6 +77,24 @@ def test_a_few_training_steps_lower_the_bce(decoder):
     assert losses[-1] < 0.5 * losses[0]
 
 
+def test_context_sizes_draw_one_encoder_size_per_batch():
+    from shapebench.api.errors import ConfigError
+
+    batch = {"points": torch.zeros(2, 1000, 3)}
+    official = OccNet(OccNet.Options(c_dim=8, hidden_dim=8, decoder_hidden=8)).build_module(0)
+    assert official.encoder_input(batch).shape == (2, 300, 3)  # input_points, always
+    options = OccNet.Options(
+        c_dim=8, hidden_dim=8, decoder_hidden=8, context_sizes=(50, 1000), surface_points=1000
+    )
+    module = OccNet(options).build_module(0)
+    gen = torch.Generator().manual_seed(0)
+    sizes = {module.encoder_input(batch, gen).shape[1] for _ in range(40)}
+    assert sizes == {50, 1000}
+    # The largest size must be loaded: one clear error naming the fix.
+    with pytest.raises(ConfigError, match="surface_points=1000"):
+        OccNet(OccNet.Options(context_sizes=(50, 1000)))
+
+
 class _OneMesh(Dataset):
     """One training object, a thin box in the unit-sphere frame; answers exactly what is asked."""
 

@@ -75,6 +75,22 @@ def test_the_transformer_is_laid_out_and_initialised_as_the_official() -> None:
     assert abs(conv.std().item() - expected) < 0.1 * expected
     reduce = net.reduce_map.weight
     assert reduce.abs().max() <= reduce.shape[1] ** -0.5 and reduce.std() > 0.03
+    # init="torch" (the ablation) leaves every layer at PyTorch's default: the same MLP layer
+    # is uniform with bound 1/sqrt(fan_in), and its bias is not zero.
+    torch.manual_seed(0)
+    plain = PoinTrNetwork(**{**TINY, "dim": 64, "depth": (2, 2)}, init="torch")
+    mlp = plain.encoder[0].mlp[0]
+    assert mlp.weight.abs().max() <= mlp.weight.shape[1] ** -0.5 and mlp.bias.abs().sum() > 0
+    assert mlp.weight.std().item() > 0.05
+
+
+def test_an_unknown_init_is_one_clear_error() -> None:
+    from shapebench_pointr.method import PoinTr
+
+    from shapebench.api.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="init must be one of"):
+        PoinTr(PoinTrOptions(init="xavier"))
 
 
 def test_the_first_decoder_block_reads_the_encoder_centres_nearest_each_query() -> None:

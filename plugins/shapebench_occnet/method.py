@@ -54,6 +54,12 @@ class OccNetOptions:
     hidden_dim: int = option(512, "encoder width (512)")
     decoder_hidden: int = option(256, "decoder width (256)")
     input_points: int = option(300, "encoder points in training (300)")
+    context_sizes: tuple[int, ...] = option(
+        (),
+        "encoder point counts the training batches draw from, one per batch, instead of "
+        "input_points (empty: input_points always, official); surface_points must cover the "
+        "largest",
+    )
     input_noise: float = option(0.005, "noise std on encoder input")
     query_points: int = option(2048, "occupancy queries per step")
     surface_points: int = option(300, "surface points loaded per step")
@@ -119,6 +125,12 @@ class OccNet(ImplicitMethod):
             raise ConfigError(
                 f"occnet: queries must be one of {list(QUERY_SOURCES)}, "
                 f"got {self.options.queries!r}"
+            )
+        sizes, loaded = self.options.context_sizes, self.options.surface_points
+        if sizes and (min(sizes) < 1 or max(sizes) > loaded):
+            raise ConfigError(
+                f"occnet: context_sizes {list(sizes)} must lie in 1..surface_points ({loaded}); "
+                f"raise surface_points (-O surface_points={max(max(sizes), loaded)})"
             )
 
     def needs(self) -> frozenset[Supervision]:

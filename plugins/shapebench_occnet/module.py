@@ -6,6 +6,7 @@ import torch
 from torch.nn import functional as F
 
 from shapebench.train.batchnorm import is_final_step, recalibrate_batchnorm
+from shapebench.train.lightning_fit import step_generator
 from shapebench.train.lightning_module import OptionsModule
 from shapebench_occnet.method import OccNetOptions
 from shapebench_occnet.network import DecoderBatchNorm, DecoderCBatchNorm, ResnetPointnet
@@ -32,10 +33,17 @@ class OccNetModule(OptionsModule):
         bce = F.binary_cross_entropy_with_logits(logits, occupancy[..., 3], reduction="none")
         return bce.sum(dim=1).mean()
 
-    def encoder_input(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        """A training batch's encoder input: its first ``input_points`` points, noised."""
+    def encoder_input(
+        self, batch: dict[str, torch.Tensor], generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """A training batch's encoder input: its first ``input_points`` points, or as many as
+        one of ``context_sizes`` drawn from ``generator``, noised."""
         o = self.options
-        points = batch["points"][:, : o.input_points]
+        k = o.input_points
+        if o.context_sizes:
+            gen = generator if generator is not None else step_generator(self)
+            k = o.context_sizes[int(torch.randint(len(o.context_sizes), (1,), generator=gen))]
+        points = batch["points"][:, :k]
         return points + o.input_noise * torch.randn_like(points)  # as the paper and official
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
@@ -52,7 +60,7 @@ class OccNetModule(OptionsModule):
         if self.options.precise_bn_batches and is_final_step(self.trainer):
             recalibrate_batchnorm(
                 self,
-                lambda b, _gen: self.loss(self.encoder_input(b), b["occupancy"]),
+                lambda b, gen: self.loss(self.encoder_input(b, gen), b["occupancy"]),
                 self.trainer.train_dataloader,
                 self.options.precise_bn_batches,
             )

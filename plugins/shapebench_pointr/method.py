@@ -24,9 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shapebench.api.errors import ConfigError
 from shapebench.api.options import option, steps_option
 from shapebench.api.types import Completion, Context, Supervision
 from shapebench.train.lightning_method import LightningMethod
+
+#: Initialisations of the network: the official one (``network.official_init``), or PyTorch's
+#: defaults everywhere (as the network here before 2026-11-28; for the ablation).
+INITS = ("official", "torch")
 
 
 @dataclass(frozen=True)
@@ -55,6 +60,11 @@ class PoinTrOptions:
     )
     lr_floor: float = option(0.02, "lowest lr factor (0.02)")
     grad_clip: float = option(10.0, "gradient norm clip (10)")
+    init: str = option(
+        "official",
+        "weight initialisation: 'official' (truncated normal 0.02, Xavier for the 1x1 "
+        "convolutions, as PCTransformer._init_weights) or 'torch' (PyTorch's defaults)",
+    )
     precise_bn_batches: int = option(
         0,
         "training batches the BatchNorm statistics are recomputed over once training ends "
@@ -91,6 +101,13 @@ class PoinTr(LightningMethod):
         "batch_shapes": 4,
     }
     batch_size = 16
+
+    def __init__(self, options=None) -> None:
+        super().__init__(options)
+        if self.options.init not in INITS:
+            raise ConfigError(
+                f"pointr: init must be one of {list(INITS)}, got {self.options.init!r}"
+            )
 
     def sample_sizes(self) -> dict[Supervision, int]:
         o = self.options

@@ -27,6 +27,7 @@ class PoinTrModule(OptionsModule):
             fold_step=o.fold_step,
             global_dim=o.global_dim,
             proxies=o.proxies,
+            init=o.init,
         )
 
     def losses(self, points: torch.Tensor, target: torch.Tensor) -> dict[str, torch.Tensor]:

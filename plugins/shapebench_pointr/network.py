@@ -38,6 +38,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from shapebench_pointr.method import INITS
+
 
 def farthest_point_sample(xyz: torch.Tensor, n: int) -> torch.Tensor:
     """(B, n) indices of a farthest-point sample of ``xyz`` (B, N, 3), from index 0 (as the
@@ -252,8 +254,11 @@ class PoinTrNetwork(nn.Module):
         global_dim: int = 1024,
         first_sample: int = 512,
         proxies: int = 128,
+        init: str = "official",
     ) -> None:
         super().__init__()
+        if init not in INITS:
+            raise ValueError(f"init must be one of {list(INITS)}, got {init!r}")
         self.num_query = num_query
         self.grouper = DGCNNGrouper(first_sample, proxies)
         self.input_proj = pointwise_mlp(128, dim, dim)
@@ -278,6 +283,8 @@ class PoinTrNetwork(nn.Module):
         self.rebuild_dim = pointwise_mlp(dim, global_dim, global_dim)
         self.reduce_map = nn.Linear(global_dim + dim + 3, dim)
         self.folding = Folding(dim, fold_step)
+        if init == "torch":
+            return  # every layer keeps PyTorch's default initialisation
         official_init(
             [self.grouper, self.input_proj, self.pos_embed, self.encoder, self.increase_dim]
             + [self.coarse_pred, self.query_mlp, self.decoder],
