@@ -58,6 +58,39 @@ def test_emd_and_chamfer_on_known_cases():
     assert [alpha(s) for s in (0, 10_000, 20_000, 50_000)] == [0.01, 0.1, 0.5, 1.0]
 
 
+def _chamfer_through_cdist(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The loss as it was written before the nearest pairs were searched apart: the whole
+    (B, N, M) matrix, differentiated through ``min``."""
+    d = torch.cdist(a, b, compute_mode="donot_use_mm_for_euclid_dist")
+    return 0.5 * (d.min(dim=2).values.mean(dim=1) + d.min(dim=1).values.mean(dim=1))
+
+
+@pytest.mark.parametrize("shapes", [((2, 300, 3), (2, 500, 3)), ((3, 1000, 3), (3, 64, 3))])
+def test_chamfer_by_nearest_pairs_has_the_loss_and_gradient_of_the_whole_matrix(shapes):
+    g = torch.Generator().manual_seed(1)
+    a0, b0 = torch.randn(shapes[0], generator=g), 0.5 * torch.randn(shapes[1], generator=g)
+    grads = []
+    for loss in (chamfer_l1_halved, _chamfer_through_cdist):
+        a, b = a0.clone().requires_grad_(), b0.clone().requires_grad_()
+        value = loss(a, b)
+        value.sum().backward()
+        grads.append((value.detach(), a.grad, b.grad))
+    (v1, ga1, gb1), (v2, ga2, gb2) = grads
+    assert v1.shape == (shapes[0][0],)
+    torch.testing.assert_close(v1, v2, rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(ga1, ga2, rtol=1e-4, atol=1e-7)
+    torch.testing.assert_close(gb1, gb2, rtol=1e-4, atol=1e-7)
+
+
+def test_chamfer_of_coincident_points_has_zero_gradient_and_nan_stays_nan():
+    a = torch.rand(1, 50, 3, requires_grad=True)
+    chamfer_l1_halved(a, a.detach().clone()).sum().backward()
+    assert torch.equal(a.grad, torch.zeros_like(a))  # not NaN: the norm's subgradient at 0
+    broken = torch.rand(1, 50, 3)
+    broken[0, 7] = float("nan")  # a diverged network: the loss says so instead of raising
+    assert torch.isnan(chamfer_l1_halved(broken, torch.rand(1, 40, 3))).all()
+
+
 def _sphere(n: int, seed: int) -> torch.Tensor:
     v = torch.randn(n, 3, generator=torch.Generator().manual_seed(seed))
     return 0.7 * v / v.norm(dim=1, keepdim=True)

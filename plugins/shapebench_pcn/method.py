@@ -51,11 +51,13 @@ class PCN(LightningMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PCNOptions
     module_path = "shapebench_pcn.module:PCNModule"
-    #: The shared Chamfer loss, and ``shapebench.implicit`` (the network's ``mlp``, the context
-    #: stacking of ``encode``): both shape its results, so both are part of its keys.
+    #: The shared Chamfer loss with the nearest-neighbour search it runs on, and
+    #: ``shapebench.implicit`` (the network's ``mlp``, the context stacking of ``encode``): they
+    #: shape its results, so they are part of its keys.
     code_modules = (
         *LightningMethod.code_modules,
         "shapebench.train.losses",
+        "shapebench.geometry.nearest",
         "shapebench.implicit.networks",
     )
     #: Tiny options for ``shapebench check``: a small network, one epoch.

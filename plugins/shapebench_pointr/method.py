@@ -78,12 +78,14 @@ class PoinTr(LightningMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PoinTrOptions
     module_path = "shapebench_pointr.module:PoinTrModule"
-    #: The halved Chamfer (its loss) and ``shapebench.implicit`` (the context stacking of
-    #: ``encode``) shape its results: both are part of its keys.
+    #: The halved Chamfer (its loss) with the nearest-neighbour search it runs on, and
+    #: ``shapebench.implicit`` (the context stacking of ``encode``) shape its results: they are
+    #: part of its keys.
     code_modules = (
         *LightningMethod.code_modules,
         "shapebench.train.batchnorm",
         "shapebench.train.losses",
+        "shapebench.geometry.nearest",
         "shapebench.implicit.completion",
     )
     #: Tiny options for ``shapebench check``: a small network, one epoch.

@@ -132,6 +132,18 @@ def nearest_distances(query: Any, reference: Any, tree: PointTree | cKDTree | No
     return dist
 
 
+def nearest_indices(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """For each row of ``query`` (finite, float64), the index of the closest row of the
+    non-empty, finite ``reference`` (int64), from the same exact KD-tree search as
+    :func:`nearest_distances`. Where two points of ``reference`` are equally close the two trees
+    may name different ones; the distance is the same."""
+    q = np.ascontiguousarray(query, dtype=np.float64)
+    r = np.ascontiguousarray(reference, dtype=np.float64)
+    if _PyKDTree is not None:
+        return _PyKDTree(r).query(q, k=1)[1].astype(np.int64)
+    return cKDTree(r).query(q, k=1, workers=-1)[1].astype(np.int64)
+
+
 def _is_cuda_tensor(x: Any) -> bool:
     return type(x).__module__.startswith("torch") and getattr(x, "is_cuda", False)
 

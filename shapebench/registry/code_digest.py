@@ -27,7 +27,17 @@ _EXCLUDED = {"shapebench.api.method", "abc", "builtins"}
 #: shapebench's core: a module there stands for its own file, not for its whole package.
 _CORE = {"shapebench"} | {
     f"shapebench.{room}"
-    for room in ("api", "registry", "store", "train", "evaluation", "boards", "sweeps", "cli")
+    for room in (
+        "api",
+        "registry",
+        "store",
+        "train",
+        "evaluation",
+        "boards",
+        "sweeps",
+        "cli",
+        "geometry",
+    )
 }
 
 
