@@ -105,6 +105,17 @@ def by_seed(board) -> list[str]:
     return lines
 
 
+def split_pair(text: str) -> tuple[str, str]:
+    """``NOW=BEFORE`` at the ``=`` outside the labels' brackets, so both sides may carry options:
+    ``igr=igr[profile=standard]``, ``pointr[weights=local]=pointr``; ("", "") without one."""
+    depth = 0
+    for i, char in enumerate(text):
+        depth += {"[": 1, "]": -1}.get(char, 0)
+        if char == "=" and depth == 0:
+            return text[:i], text[i + 1 :]
+    return "", ""
+
+
 def compare_before(now, before, renamed: dict[str, str] | None = None) -> list[str]:
     """Each row of ``now`` against the row of the same label in ``before`` (or of the label
     ``renamed`` gives it), per context size."""
@@ -153,10 +164,12 @@ def main() -> None:
     )
     parser.add_argument("--by-seed", action="store_true", help="also each row's means per seed")
     args = parser.parse_args()
-    bad = [p for p in args.pair if "=" not in p.strip("=")]
-    if bad:
-        parser.error(f"--pair takes NOW=BEFORE, got {bad[0]!r}")
-    renamed = dict(p.rsplit("=", 1) for p in args.pair)
+    renamed = {}
+    for pair in args.pair:
+        now, before = split_pair(pair)
+        if not now or not before:
+            parser.error(f"--pair takes NOW=BEFORE, got {pair!r}")
+        renamed[now] = before
     tracker = Tracker(make_settings(workspace=args.workspace))
     board = build_board(tracker, args.dataset, args.split, args.reference, args.metric)
     if board is None or board.scored is None:

@@ -47,6 +47,36 @@ def test_decoder_width_sizes_the_coarse_decoder_only():
     assert narrow(torch.randn(2, 50, 3))[1].shape == (2, 4096, 3)
 
 
+def _forward_by_concatenation(net: PCNNetwork, points: torch.Tensor):
+    """The official code's forward: the per-shape vectors concatenated onto every point."""
+    b = points.shape[0]
+    local = net.encoder_0(points)
+    pooled = local.max(dim=1, keepdim=True).values.expand_as(local)
+    feature = net.encoder_1(torch.cat([local, pooled], dim=-1)).max(dim=1).values
+    coarse = net.coarse(feature).view(b, net.num_coarse, 3)
+    centre = coarse.repeat_interleave(len(net.grid), dim=1)
+    grid = net.grid.repeat(net.num_coarse, 1)[None].expand(b, -1, -1)
+    glob = feature[:, None, :].expand(-1, centre.shape[1], -1)
+    return coarse, net.folding(torch.cat([grid, centre, glob], dim=-1)) + centre
+
+
+def test_the_split_concatenations_compute_the_official_forward_and_gradient():
+    torch.manual_seed(0)
+    net = PCNNetwork(feature=64, num_coarse=32, grid_size=4, decoder_width=96)
+    points = torch.randn(3, 70, 3)
+    results = []
+    for forward in (net.forward, lambda x: _forward_by_concatenation(net, x)):
+        net.zero_grad()
+        coarse, fine = forward(points)
+        (coarse.square().sum() + fine.sin().sum()).backward()
+        results.append((coarse, fine, [p.grad.clone() for p in net.parameters()]))
+    (c1, f1, g1), (c2, f2, g2) = results
+    torch.testing.assert_close(c1, c2)
+    torch.testing.assert_close(f1, f2)
+    for a, b in zip(g1, g2, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
 def test_emd_and_chamfer_on_known_cases():
     torch.manual_seed(0)
     a = torch.rand(1, 200, 3)
@@ -118,7 +148,7 @@ def test_training_lowers_the_loss_and_completion_beats_the_raw_context():
     for _ in range(150):
         terms = module.losses(context, target)
         loss = terms["coarse"] + terms["fine"]
-        first = float(loss) if first is None else first
+        first = loss.item() if first is None else first
         opt.zero_grad()
         loss.backward()
         opt.step()
