@@ -35,11 +35,20 @@ unpack)
 pack)
     mkdir -p "$(dirname "$archive")"
     cd "$ws"
-    # Checkpoints of unfinished trainings only (no done.json beside them).
+    # Checkpoints of unfinished trainings only (no done.json beside them), each at most
+    # MAX_CKPT_MB (default 20) so git does not carry a large network's optimiser state: a larger
+    # one is left out, and that training starts again from step 0 in the next session.
     unfinished=()
+    max_mb=${MAX_CKPT_MB:-20}
     while IFS= read -r ckpt; do
         dir=$(dirname "$ckpt")
-        [ -e "$dir/done.json" ] || unfinished+=("$dir")
+        [ -e "$dir/done.json" ] && continue
+        mb=$(( $(stat -c %s "$ckpt") / 1048576 ))
+        if [ "$mb" -gt "$max_mb" ]; then
+            echo "left out $dir: its checkpoint is $mb MB (MAX_CKPT_MB=$max_mb); it retrains from step 0"
+            continue
+        fi
+        unfinished+=("$dir")
     done < <(find checkpoints -name last.ckpt 2>/dev/null)
     list=$(mktemp)
     trap 'rm -f "$list"' EXIT
