@@ -1,0 +1,114 @@
+"""What a completion costs with and without subnormal floats, at one and two threads.
+
+    .venv/bin/python benchmarks/bench_completion.py -m msc-noopt --checkpoint PATH \
+        [--profile standard] [--objects 4] [--contexts 50,1000] [--rounds 2]
+
+For a trained method and the synthetic benchmark's validation objects it completes the same
+contexts (the runs' nested first ``k`` points) under four settings, interleaved over
+``--rounds``, and prints each one's best time and its ratio to the baseline measured in the same
+run (two threads, subnormals as they come: the default of a ``shapebench sweep`` on 2 cores):
+
+* threads 2 and 1, each as torch computes by default and inside
+  :func:`shapebench.evaluation.runner.subnormals_flushed` (what runs do since 2026-11-29);
+
+and whether every setting's completions are bitwise those of the baseline's thread count
+without the flush (the flush must change no point; the thread count may, and is reported
+apart). Nothing is logged; the checkpoint is only read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> dict[tuple[int, bool], float]:
+    """Print the table; return {(threads, flushed): best seconds}."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--method", "-m", required=True)
+    parser.add_argument("--checkpoint", type=Path, help="trained weights (not for gauss)")
+    parser.add_argument("--profile", default="quick")
+    parser.add_argument("--objects", type=int, default=4)
+    parser.add_argument("--contexts", default="50,1000")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--points", type=int, default=30000, help="points per completion")
+    parser.add_argument("--cache-dir", default=None)
+    parser.add_argument("-O", action="append", default=[], help="method option KEY=VALUE")
+    parser.add_argument("-D", action="append", default=[], help="dataset option KEY=VALUE")
+    args = parser.parse_args(argv)
+
+    import torch
+
+    from shapebench.api.contexts import ContextStore
+    from shapebench.api.options import parse_assignments
+    from shapebench.api.types import Context
+    from shapebench.config import make_settings
+    from shapebench.evaluation.runner import subnormals_flushed
+    from shapebench.hashing import stable_seed
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_dataset, resolve_method
+
+    settings = make_settings(None, args.cache_dir, args.profile, tempfile.gettempdir())
+    reg = get_registry()
+    resolved = resolve_method(reg, args.method, settings, parse_assignments(args.O, "-O"))
+    dataset = resolve_dataset(reg, "synthetic", settings, None, parse_assignments(args.D, "-D"))
+    method = resolved.cls(resolved.options)
+    if args.checkpoint is not None:
+        method.load_checkpoint(args.checkpoint)
+    refs = dataset.objects("validation")
+    refs = refs[:: max(len(refs) // args.objects, 1)][: args.objects]
+    store = ContextStore(dataset.cache_root, dataset.data_fingerprint())
+    contexts = []
+    for ref in refs:
+        data = dataset.load(ref)
+        order = store.order(data)
+        for k in (int(s) for s in args.contexts.split(",")):
+            points = np.ascontiguousarray(data.surface_points[order[:k]], dtype=np.float32)
+            contexts.append(Context(ref, points, None, seed=stable_seed("bench", ref.id, k)))
+
+    settings_list = [(2, False), (2, True), (1, False), (1, True)]
+    times: dict[tuple[int, bool], list[float]] = {s: [] for s in settings_list}
+    points: dict[tuple[int, bool], list[np.ndarray]] = {}
+    before = torch.get_num_threads()
+    method.complete_batch(contexts[:1], args.points)  # warm-up: lazy imports, first allocations
+    for _ in range(args.rounds):
+        for threads, flushed in settings_list:
+            torch.set_num_threads(threads)
+            start = time.perf_counter()
+            with subnormals_flushed() if flushed else contextlib.nullcontext():
+                out = [method.complete_batch([c], args.points)[0] for c in contexts]
+            times[(threads, flushed)].append(time.perf_counter() - start)
+            points[(threads, flushed)] = [getattr(o, "points", None) for o in out]
+    torch.set_num_threads(before)
+
+    def same(a: list, b: list) -> bool:
+        return all(
+            x is not None and y is not None and np.array_equal(x, y)
+            for x, y in zip(a, b, strict=True)
+        )
+
+    base = min(times[(2, False)])
+    print(
+        f"{args.method}: {len(contexts)} completions of {len(refs)} validation objects, best of "
+        f"{args.rounds} interleaved rounds"
+    )
+    print(f"{'threads':>7} {'flushed':>8} {'seconds':>8} {'vs 2, as is':>12}  points as unflushed")
+    for threads, flushed in settings_list:
+        best = min(times[(threads, flushed)])
+        equal = same(points[(threads, flushed)], points[(threads, False)])
+        print(
+            f"{threads:>7} {str(flushed):>8} {best:>8.2f} {base / best:>11.2f}x  "
+            f"{'bitwise equal' if equal else 'DIFFER'}"
+        )
+    across = same(points[(1, False)], points[(2, False)])
+    print(f"1 thread against 2 (unflushed): {'bitwise equal' if across else 'differ'}")
+    return {s: min(v) for s, v in times.items()}
+
+
+if __name__ == "__main__":
+    main()
