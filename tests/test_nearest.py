@@ -26,6 +26,7 @@ from shapebench.geometry.nearest import (
     brute_force_nearest,
     kdtree,
     nearest_distances,
+    torch_nearest,
 )
 
 needs_pykdtree = pytest.mark.skipif(
@@ -172,6 +173,25 @@ def test_query_is_ckdtree_query() -> None:
     want_dist, want_idx = cKDTree(reference).query(query, k=8, workers=-1)
     np.testing.assert_array_equal(dist, want_dist)
     np.testing.assert_array_equal(idx, want_idx)
+
+
+@pytest.mark.parametrize("backend", nearest.BACKENDS)
+def test_indices_name_the_point_at_the_nearest_distance(backend: str) -> None:
+    """``PointTree.indices`` (the training losses' pairs) comes from the search that gives
+    ``distances``, and the brute force on tensors (their GPU path) finds the same points."""
+    if backend == "pykdtree" and nearest.DEFAULT_BACKEND != "pykdtree":
+        pytest.skip("pykdtree is not installed")
+    rng = np.random.default_rng(10)
+    query, reference = surface(700, rng), surface(900, rng, noise=0.01)
+    tree = kdtree(reference, backend=backend)
+    index = tree.indices(query)
+    assert index.dtype == np.int64 and index.shape == (700,)
+    gap = query.astype(np.float64) - reference.astype(np.float64)[index]
+    np.testing.assert_array_equal(np.sqrt((gap * gap).sum(axis=1)), tree.distances(query))
+    np.testing.assert_array_equal(index, kdtree(reference, backend="scipy").indices(query))
+    dist, brute = torch_nearest(torch.from_numpy(query), torch.from_numpy(reference), chunk=128)
+    np.testing.assert_array_equal(brute.numpy(), index)  # no ties among random points
+    np.testing.assert_allclose(dist.numpy(), tree.distances(query), rtol=1e-6, atol=1e-7)
 
 
 def test_tree_pickles_and_builds_each_kind_once() -> None:

@@ -84,12 +84,21 @@ class PointTree:
 
     def distances(self, query: np.ndarray) -> np.ndarray:
         """For each row of ``query``, the distance to the closest point (float64)."""
+        return self._nearest(query)[0]
+
+    def indices(self, query: np.ndarray) -> np.ndarray:
+        """For each row of ``query``, the index of the closest point (int64), from the same
+        search as :meth:`distances`. Where two points are equally close the two backends may
+        name different ones; the distance is the same."""
+        return self._nearest(query)[1].astype(np.int64)
+
+    def _nearest(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = np.ascontiguousarray(query, dtype=np.float64)
         if self._use_pykdtree(q):
             if self._fast is None:
                 self._fast = _PyKDTree(self.data)
-            return self._fast.query(q, k=1)[0]
-        return self.scipy_tree.query(q, k=1, workers=-1)[0]
+            return self._fast.query(q, k=1)
+        return self.scipy_tree.query(q, k=1, workers=-1)
 
     def _use_pykdtree(self, q: np.ndarray) -> bool:
         if self.backend != "pykdtree":
@@ -122,7 +131,7 @@ def nearest_distances(query: Any, reference: Any, tree: PointTree | cKDTree | No
     stay on the GPU. The result has ``len(query)`` entries.
     """
     if _is_cuda_tensor(query) or _is_cuda_tensor(reference):
-        return _torch_nearest(query, reference)
+        return torch_nearest(query, reference)[0]
     q = as_numpy(query)
     if tree is None:
         tree = kdtree(as_numpy(reference))
@@ -130,18 +139,6 @@ def nearest_distances(query: Any, reference: Any, tree: PointTree | cKDTree | No
         return tree.distances(q)
     dist, _ = tree.query(q, k=1, workers=-1)
     return dist
-
-
-def nearest_indices(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """For each row of ``query`` (finite, float64), the index of the closest row of the
-    non-empty, finite ``reference`` (int64), from the same exact KD-tree search as
-    :func:`nearest_distances`. Where two points of ``reference`` are equally close the two trees
-    may name different ones; the distance is the same."""
-    q = np.ascontiguousarray(query, dtype=np.float64)
-    r = np.ascontiguousarray(reference, dtype=np.float64)
-    if _PyKDTree is not None:
-        return _PyKDTree(r).query(q, k=1)[1].astype(np.int64)
-    return cKDTree(r).query(q, k=1, workers=-1)[1].astype(np.int64)
 
 
 def _is_cuda_tensor(x: Any) -> bool:
@@ -155,18 +152,22 @@ def as_numpy(x: Any) -> np.ndarray:
     return np.asarray(x, dtype=np.float64)
 
 
-def _torch_nearest(query: Any, reference: Any, chunk: int = 4096) -> Any:
+def torch_nearest(query: Any, reference: Any, chunk: int = 4096) -> tuple[Any, Any]:
+    """For each row of ``query``, the distance to the closest row of ``reference`` (float32)
+    and its index (int64), by brute force on the tensors' device in chunks of ``chunk`` rows:
+    the GPU path of :func:`nearest_distances` and of the training losses."""
     import torch
 
     device = query.device if _is_cuda_tensor(query) else reference.device
     q = torch.as_tensor(query, device=device, dtype=torch.float32)
     r = torch.as_tensor(reference, device=device, dtype=torch.float32)
-    out = torch.empty(len(q), device=device, dtype=torch.float32)
+    dist = torch.empty(len(q), device=device, dtype=torch.float32)
+    index = torch.empty(len(q), device=device, dtype=torch.int64)
     for start in range(0, len(q), chunk):
         # The matrix-product form of cdist loses ~5e-4 on near-coincident points in float32.
         d = torch.cdist(q[start : start + chunk], r, compute_mode="donot_use_mm_for_euclid_dist")
-        out[start : start + chunk] = d.min(dim=1).values
-    return out
+        dist[start : start + chunk], index[start : start + chunk] = d.min(dim=1)
+    return dist, index
 
 
 def brute_force_nearest(query: np.ndarray, reference: np.ndarray, chunk: int = 2048) -> np.ndarray:
