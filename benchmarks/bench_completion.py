@@ -3,9 +3,10 @@
     .venv/bin/python benchmarks/bench_completion.py -m msc-noopt --checkpoint PATH \
         [--profile standard] [--objects 4] [--contexts 50,1000] [--rounds 2]
 
-For a trained method and the synthetic benchmark's validation objects it completes the same
-contexts (the runs' nested first ``k`` points) under four settings, interleaved over
-``--rounds``, and prints each one's best time and its ratio to the baseline measured in the same
+For a trained method (resolved with its profile and options as ``ladder.py`` resolves them)
+and the synthetic benchmark's validation objects it completes the same contexts (the runs'
+nested first ``k`` points) under four settings, interleaved over ``--rounds``, and prints each
+one's best time and its ratio to the baseline measured in the same
 run (two threads, subnormals as they come: the default of a ``shapebench sweep`` on 2 cores):
 
 * threads 2 and 1, each as torch computes by default and inside
@@ -20,18 +21,21 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import tempfile
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from ladder import resolve  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> dict[tuple[int, bool], float]:
     """Print the table; return {(threads, flushed): best seconds}."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--method", "-m", required=True)
-    parser.add_argument("--checkpoint", type=Path, help="trained weights (not for gauss)")
+    parser.add_argument("--checkpoint", type=Path, required=True, help="trained weights")
     parser.add_argument("--profile", default="quick")
     parser.add_argument("--objects", type=int, default=4)
     parser.add_argument("--contexts", default="50,1000")
@@ -45,21 +49,13 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, bool], float]:
     import torch
 
     from shapebench.api.contexts import ContextStore
-    from shapebench.api.options import parse_assignments
     from shapebench.api.types import Context
-    from shapebench.config import make_settings
     from shapebench.evaluation.runner import subnormals_flushed
     from shapebench.hashing import stable_seed
-    from shapebench.registry.discovery import get_registry
-    from shapebench.registry.resolve import resolve_dataset, resolve_method
 
-    settings = make_settings(None, args.cache_dir, args.profile, tempfile.gettempdir())
-    reg = get_registry()
-    resolved = resolve_method(reg, args.method, settings, parse_assignments(args.O, "-O"))
-    dataset = resolve_dataset(reg, "synthetic", settings, None, parse_assignments(args.D, "-D"))
+    resolved, dataset = resolve(args)
     method = resolved.cls(resolved.options)
-    if args.checkpoint is not None:
-        method.load_checkpoint(args.checkpoint)
+    method.load_checkpoint(args.checkpoint)
     refs = dataset.objects("validation")
     refs = refs[:: max(len(refs) // args.objects, 1)][: args.objects]
     store = ContextStore(dataset.cache_root, dataset.data_fingerprint())

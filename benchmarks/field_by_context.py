@@ -25,10 +25,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import tempfile
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from ladder import resolve  # noqa: E402
 
 
 def level_value(level: float, logits: bool) -> float:
@@ -73,17 +76,10 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, float], np.ndarray]:
     args = parser.parse_args(argv)
 
     from shapebench.api.contexts import ContextStore
-    from shapebench.api.options import parse_assignments
     from shapebench.api.types import Context, GroundTruthArray
-    from shapebench.config import make_settings
     from shapebench.hashing import stable_seed
-    from shapebench.registry.discovery import get_registry
-    from shapebench.registry.resolve import resolve_dataset, resolve_method
 
-    settings = make_settings(None, args.cache_dir, args.profile, tempfile.gettempdir())
-    reg = get_registry()
-    resolved = resolve_method(reg, args.method, settings, parse_assignments(args.O, "-O"))
-    dataset = resolve_dataset(reg, "synthetic", settings, None, parse_assignments(args.D, "-D"))
+    resolved, dataset = resolve(args)
     method = resolved.cls(resolved.options)
     if not hasattr(method, "field"):
         raise SystemExit(f"{args.method} has no implicit field (not an ImplicitMethod)")
