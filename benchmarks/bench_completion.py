@@ -49,9 +49,7 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, bool], float]:
     import torch
 
     from shapebench.api.contexts import ContextStore
-    from shapebench.api.types import Context
     from shapebench.evaluation.runner import subnormals_flushed
-    from shapebench.hashing import stable_seed
 
     resolved, dataset = resolve(args)
     method = resolved.cls(resolved.options)
@@ -62,10 +60,7 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, bool], float]:
     contexts = []
     for ref in refs:
         data = dataset.load(ref)
-        order = store.order(data)
-        for k in (int(s) for s in args.contexts.split(",")):
-            points = np.ascontiguousarray(data.surface_points[order[:k]], dtype=np.float32)
-            contexts.append(Context(ref, points, None, seed=stable_seed("bench", ref.id, k)))
+        contexts += [store.context(data, int(k), 0) for k in args.contexts.split(",")]
 
     settings_list = [(2, False), (2, True), (1, False), (1, True)]
     times: dict[tuple[int, bool], list[float]] = {s: [] for s in settings_list}

@@ -76,8 +76,7 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, float], np.ndarray]:
     args = parser.parse_args(argv)
 
     from shapebench.api.contexts import ContextStore
-    from shapebench.api.types import Context, GroundTruthArray
-    from shapebench.hashing import stable_seed
+    from shapebench.api.types import GroundTruthArray
 
     resolved, dataset = resolve(args)
     method = resolved.cls(resolved.options)
@@ -102,10 +101,8 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, float], np.ndarray]:
         data = dataset.load(ref, need)
         occupancy = data.extra[GroundTruthArray.OCCUPANCY.value]
         queries, truth = occupancy[:, :3], occupancy[:, 3] > 0.5
-        order = store.order(data)
         for k in sizes:
-            points = np.ascontiguousarray(data.surface_points[order[:k]], dtype=np.float32)
-            ctx = Context(ref, points, None, seed=stable_seed("field", ref.id, k, args.seed))
+            ctx = store.context(data, k, args.seed)  # the run's own context of k points
             code = next(iter(method.encode([ctx])))
             values = method.field(code)(queries)
             for lv in levels:
