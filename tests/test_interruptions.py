@@ -55,18 +55,20 @@ def wait_for(condition: Callable[[], object], timeout: float = 120, what: str = 
     raise AssertionError(f"timed out waiting for {what or condition}")
 
 
-def processes_mentioning(text: str) -> list[int]:
-    """Live processes whose command line contains ``text`` (zombies excluded)."""
+def processes_mentioning(text: str, parent: int | None = None) -> list[int]:
+    """Live processes whose command line contains ``text`` (zombies excluded); with ``parent``,
+    only that process's children, so that a test never signals a process it did not start (a
+    user's own sweep on the same machine, say)."""
     found = []
     for proc in Path("/proc").iterdir():
         if not proc.name.isdigit() or int(proc.name) == os.getpid():
             continue
         try:
             cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-            state = (proc / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            state, ppid = (proc / "stat").read_text().rsplit(")", 1)[1].split()[:2]
         except OSError:
             continue
-        if text in cmdline and state != "Z":
+        if text in cmdline and state != "Z" and (parent is None or int(ppid) == parent):
             found.append(int(proc.name))
     return found
 

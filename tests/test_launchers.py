@@ -92,7 +92,7 @@ def test_two_local_workers_give_the_inline_leaderboard_even_when_one_is_killed(
     proc = sb.popen("sweep", str(sweep), "-q", "--launcher", "local", "-j", "2")
     # Kill worker 1 while some cell is being computed: the launcher finishes its work.
     wait_for(lambda: cell_runs(sb, status="RUNNING"), timeout=300, what="a cell in progress")
-    workers = processes_mentioning("--worker 1")
+    workers = processes_mentioning("--worker 1", parent=proc.pid)  # this sweep's, not others'
     assert workers, "no worker 1 running"
     for pid in workers:
         os.kill(pid, signal.SIGKILL)
