@@ -4,9 +4,10 @@ Option values are resolved in this order, later ones winning:
 
 1. the plugin's own defaults (its ``Options`` dataclass);
 2. ``configs/methods/<name>.yaml`` or ``configs/datasets/<name>.yaml``;
-3. the profile (``configs/profiles/<profile>.yaml``: ``quick`` for a CPU, ``paper`` for the
-   paper's scale), under its ``methods:``/``datasets:``/``trainer:`` keys (a profile may
-   ``extends: <other>`` and state only what differs);
+3. the profile (``configs/profiles/<profile>.yaml``: ``quick`` for a CPU, ``standard`` for
+   issue 27's training scale, ``paper`` for the paper's scale), under its
+   ``methods:``/``datasets:``/``trainer:`` keys (a profile may ``extends: <other>`` and state
+   only what differs);
 4. the sweep file's per-entry options (``shapebench sweep``);
 5. command-line flags (``-O key=value`` for the method, ``-D key=value`` for the dataset).
 
@@ -23,8 +24,6 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 from shapebench.api.errors import ConfigError, UnknownNameError
 
@@ -85,6 +84,10 @@ def write_editable_configs(dest: Path, overwrite: bool = False) -> tuple[list[Pa
 
 
 def read_yaml(path: Path) -> dict[str, Any]:
+    # Imported here: the CLI imports this module for DEFAULT_PROFILE while building its --help,
+    # and PyYAML is most of this module's import time.
+    import yaml
+
     try:
         data = yaml.safe_load(Path(path).read_text()) or {}
     except FileNotFoundError as exc:
