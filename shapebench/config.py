@@ -27,7 +27,9 @@ from typing import Any
 
 from shapebench.api.errors import ConfigError, UnknownNameError
 
-DEFAULT_PROFILE = "quick"
+#: The profile of a command that names none and runs without $SHAPEBENCH_PROFILE: issue 27's
+#: training scale, whose reference weights ship (``quick`` stays one flag away).
+DEFAULT_PROFILE = "standard"
 WORKSPACE_DIRNAME = "shapebench-runs"
 
 
@@ -183,6 +185,12 @@ def default_cache_dir() -> Path:
     return Path(xdg) / "shapebench"
 
 
+def default_profile() -> str:
+    """The profile in effect when a command names none: ``$SHAPEBENCH_PROFILE``, else
+    :data:`DEFAULT_PROFILE`. A row's label names its profile only when it is another one."""
+    return os.environ.get("SHAPEBENCH_PROFILE") or DEFAULT_PROFILE
+
+
 def make_settings(
     tracking_uri: str | None = None,
     cache_dir: str | Path | None = None,
@@ -191,7 +199,7 @@ def make_settings(
 ) -> Settings:
     ws = Path(workspace or os.environ.get("SHAPEBENCH_WORKSPACE") or WORKSPACE_DIRNAME).absolute()
     uri = tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{ws / 'mlflow.db'}"
-    profile_name = profile or os.environ.get("SHAPEBENCH_PROFILE") or DEFAULT_PROFILE
+    profile_name = profile or default_profile()
     return Settings(
         tracking_uri=uri,
         artifact_root=ws / "artifacts",

@@ -22,6 +22,12 @@ import pytest
 from cli_fork import ForkServer
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The machinery tests run at the quick profile, in this process and in every command they start:
+#: the default (standard) generates 2,200 training shapes and 10 test objects per category. A
+#: test about the default itself clears it (``extra_env={"SHAPEBENCH_PROFILE": ""}``, or
+#: ``monkeypatch.delenv``).
+TEST_PROFILE = "quick"
+os.environ["SHAPEBENCH_PROFILE"] = TEST_PROFILE
 PLUGINS = ROOT / "tests" / "plugins"
 
 #: Dataset options that make the synthetic benchmark tiny: one test object per category.
@@ -150,6 +156,7 @@ class Shapebench:
         env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "SHAPEBENCH_"))}
         env["SHAPEBENCH_WORKSPACE"] = str(self.workspace)
         env["SHAPEBENCH_CACHE_DIR"] = str(self.cache)
+        env["SHAPEBENCH_PROFILE"] = TEST_PROFILE
         env["PYTHONPATH"] = os.pathsep.join(str(s) for s in self.sites)
         env.update(self.extra_env)
         return env

@@ -28,7 +28,7 @@ def test_shipped_sweep_resolves(path, tmp_path):
 
 def test_official_test_time_sweep_reuses_the_default_trainings(tmp_path):
     spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/official-test-time.yaml")
-    settings = make_settings(workspace=str(tmp_path))
+    settings = make_settings(workspace=str(tmp_path), profile=spec.profile)
     registry = get_registry()
     dataset = resolve_dataset(registry, "synthetic", settings, None, {})
     trainer = profile_trainer(settings, 0)
@@ -47,7 +47,8 @@ def test_data_scaling_sweep_is_a_cross_over_shared_test_objects(tmp_path):
     from shapebench.sweeps.spec import pairs
 
     spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/data-scaling.yaml")
-    settings = make_settings(workspace=str(tmp_path))
+    assert spec.profile == "quick"  # its budgets are quick's, whatever the default is
+    settings = make_settings(workspace=str(tmp_path), profile=spec.profile)
     registry = get_registry()
     trainer = profile_trainer(settings, 0)
     runs = pairs(spec, sweep_methods(spec))
@@ -147,3 +148,62 @@ def test_the_data_scaling_cross_at_4x_is_the_standard_profiles_seed_0(tmp_path):
     assert {run[3].name for run in cross} == set(four_x)
     standard_keys = keys(standard, pairs(standard, sweep_methods(standard)))
     assert keys(scaling, cross) == {name: standard_keys[name] for name in four_x}
+
+
+def test_the_default_sweep_trains_nothing_from_a_fresh_clone(tmp_path):
+    """Every trainable row of configs/sweeps/default.yaml, at the real default profile (not the
+    quick one the other tests run at), finds a shipped reference: the quickstart installs weights
+    and trains nothing. A change to a method's code or options that moves its key fails here
+    until its reference is retrained (scripts/reference_checkpoints.py)."""
+    from shapebench.config import DEFAULT_PROFILE
+    from shapebench.train.training import find_reference
+
+    spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/default.yaml")
+    assert spec.profile is None  # it follows the default
+    settings = make_settings(workspace=str(tmp_path), profile=DEFAULT_PROFILE)
+    registry = get_registry()
+    dataset = resolve_dataset(registry, "synthetic", settings, None, {})
+    trainer = profile_trainer(settings, 0)
+    trainable = []
+    for entry in sweep_methods(spec):
+        method = apply_trainer(
+            resolve_method(registry, entry.name, settings, entry.options), trainer
+        )
+        if method.cls.trains:
+            trainable.append(entry.name)
+            key = checkpoint_key(method, dataset, trainer)
+            assert find_reference(method, key) is not None, f"{entry.name}: no reference for {key}"
+    assert {"igr", "deepsdf", "msc", "occnet", "pcn"} <= set(trainable)
+
+
+def test_sweep_dataset_options_shrink_the_benchmark_and_keep_every_key(tmp_path):
+    """`shapebench sweep default.yaml -D test_per_category=4` (the quickstart): every dataset entry
+    takes the option over its own, the test objects are the first 4 of each category of the
+    whole sweep's, and no checkpoint key moves (the same shipped weights serve both)."""
+    from shapebench.sweeps.spec import with_dataset_options
+
+    path = tmp_path / "s.yaml"
+    path.write_text(
+        "methods: [msc]\ndatasets: [{name: synthetic, options: {test_per_category: 3}},"
+        " {name: synthetic, label: big, options: {train_per_category: 20}}]\n"
+    )
+    spec = load_sweep(path)
+    small = with_dataset_options(spec, {"test_per_category": 2})
+    assert [d.options for d in small.datasets] == [
+        {"test_per_category": 2},
+        {"train_per_category": 20, "test_per_category": 2},
+    ]
+    assert [d.label for d in small.datasets] == [None, "big"]
+    assert with_dataset_options(spec, {}) is spec
+    settings = make_settings(workspace=str(tmp_path), cache_dir=tmp_path / "cache")
+    registry = get_registry()
+    trainer = profile_trainer(settings, 0)
+    msc = apply_trainer(resolve_method(registry, "msc", settings, {}), trainer)
+    (whole, part) = (
+        resolve_dataset(registry, "synthetic", settings, None, s.datasets[0].options)
+        for s in (spec, small)
+    )
+    assert checkpoint_key(msc, whole, trainer) == checkpoint_key(msc, part, trainer)
+    ids = {s: [o.id for o in d.objects("trained")] for s, d in (("whole", whole), ("part", part))}
+    assert len(ids["whole"]) == 3 * len(ids["part"]) / 2
+    assert set(ids["part"]) <= set(ids["whole"])

@@ -95,8 +95,9 @@ def store_options(f):
     f = click.option(
         "--profile",
         default=None,
-        help="Config profile (configs/profiles/NAME.yaml): quick (a 2-core CPU, 66 training "
-        "shapes), standard (2,200 shapes, 4x quick's steps) or paper (the paper's scale) "
+        help="Config profile (configs/profiles/NAME.yaml): standard (2,200 training shapes, "
+        "10 test objects per category; its weights ship), quick (66 training shapes, 2 test "
+        "objects per category: minutes on a CPU) or paper (the paper's scale) "
         f"[default: {DEFAULT_PROFILE}, or $SHAPEBENCH_PROFILE].",
     )(f)
     return f

@@ -207,6 +207,14 @@ def run(
     "with the same cells and keys as the whole sweep: e.g. -m msc,msc-noopt.",
 )
 @click.option(
+    "-D",
+    "dataset_opts",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Dataset option for every dataset entry, over the sweep file's, e.g. -D "
+    "test_per_category=4 (fewer test objects, the same trained weights; repeatable).",
+)
+@click.option(
     "--launcher",
     type=click.Choice(["inline", "local", "slurm", "submitit-local"]),
     default=None,
@@ -244,6 +252,7 @@ def sweep(
     retrain,
     quiet,
     methods,
+    dataset_opts,
     launcher,
     jobs,
     slurm_opts,
@@ -295,14 +304,17 @@ def sweep(
     Examples:
       shapebench sweep configs/sweeps/default.yaml
       shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
+      shapebench sweep configs/sweeps/default.yaml -D test_per_category=4   # fewer objects
       shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
       shapebench sweep configs/sweeps/default.yaml --status
       shapebench sweep configs/sweeps/data-scaling.yaml -m msc,msc-noopt   # MSC's part
     """
     from shapebench.cli.printing import print_summary
-    from shapebench.sweeps.spec import load_sweep, only_methods
+    from shapebench.sweeps.spec import load_sweep, only_methods, with_dataset_options
 
+    dataset_options = _parse(dataset_opts, "-D")
     spec = only_methods(load_sweep(Path(sweep_file)), methods)
+    spec = with_dataset_options(spec, dataset_options)
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
     if frame is not None or context_normals is not None:
         from dataclasses import replace
@@ -332,6 +344,7 @@ def sweep(
         frame=frame,
         context_normals=context_normals,
         methods=tuple(methods),
+        dataset_options=dataset_options,
     )
     if status:
         show_status(launch)

@@ -17,7 +17,7 @@ def init(directory: Path, force: bool) -> None:
     """Write the built-in profiles and an example sweep into DIRECTORY/configs.
 
     Commands run from DIRECTORY read configs/ there before the built-in copies, one file at a
-    time: edit configs/profiles/quick.yaml to change what the default profile trains, or copy
+    time: edit configs/profiles/standard.yaml to change what the default profile trains, or copy
     configs/sweeps/default.yaml to make a sweep of your own. A file that is already there is
     kept (it may hold your edits) unless --force. An edited profile changes the checkpoint and
     cell keys of what it configures, so shipped reference weights no longer match them.

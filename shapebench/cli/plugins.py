@@ -35,7 +35,7 @@ _PROFILE_OPTION = click.option(
     "--profile",
     default=None,
     help="Also show the values in effect with this profile (configs/<kind>s/<name>.yaml and "
-    "configs/profiles/<profile>.yaml applied) [default: quick, or $SHAPEBENCH_PROFILE].",
+    "configs/profiles/<profile>.yaml applied) [default: standard, or $SHAPEBENCH_PROFILE].",
 )
 
 
@@ -74,9 +74,9 @@ def datasets(profile) -> None:
 
 
 def _profile_name(profile: str | None) -> str:
-    from shapebench.config import DEFAULT_PROFILE
+    from shapebench.config import default_profile
 
-    return profile or os.environ.get("SHAPEBENCH_PROFILE") or DEFAULT_PROFILE
+    return profile or default_profile()
 
 
 @cli.command()

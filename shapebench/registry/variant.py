@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from shapebench.api.protocol import Protocol
-from shapebench.config import DEFAULT_PROFILE
+from shapebench.config import default_profile
 from shapebench.hashing import stable_hash
 
 
@@ -77,7 +77,7 @@ def make_variant(
     key = stable_hash(identity)
     overrides: dict[str, Any] = dict(option_overrides)
     overrides.update(training_overrides or {})
-    if profile != DEFAULT_PROFILE:
+    if profile != default_profile():
         overrides["profile"] = profile
     if checkpoint_file:
         overrides["checkpoint"] = checkpoint_file.rsplit("/", 1)[-1].split(":", 1)[0]

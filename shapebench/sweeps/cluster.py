@@ -148,6 +148,8 @@ class JobContext:
     #: ``shapebench sweep -m``: the method entries the submitting process kept (cells are
     #: addressed by their index among them)
     methods: tuple[str, ...] = ()
+    #: ``shapebench sweep -D``: dataset options over every dataset entry's.
+    dataset_options: dict[str, Any] = field(default_factory=dict)
 
     def settings(self) -> Settings:
         settings = make_settings(self.tracking_uri, self.cache_dir, self.profile, self.workspace)
@@ -159,9 +161,10 @@ class JobContext:
 
     def spec(self) -> Any:
         from shapebench.api.protocol import Protocol
-        from shapebench.sweeps.spec import load_sweep, only_methods
+        from shapebench.sweeps.spec import load_sweep, only_methods, with_dataset_options
 
         spec = only_methods(load_sweep(Path(self.sweep_file)), self.methods)
+        spec = with_dataset_options(spec, self.dataset_options)
         if self.frame is not None or self.context_normals is not None:
             spec = replace(
                 spec,

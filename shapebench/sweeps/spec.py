@@ -261,6 +261,17 @@ def only_methods(spec: SweepSpec, names: Iterable[str]) -> SweepSpec:
     return replace(spec, methods=[e for e in entries if e.name in wanted])
 
 
+def with_dataset_options(spec: SweepSpec, options: dict[str, Any]) -> SweepSpec:
+    """``spec`` with ``options`` (``shapebench sweep -D key=value``) given to every dataset entry,
+    over the entry's own: the command line wins, as for ``shapebench run``. A smaller benchmark
+    (``-D test_per_category=4``) keeps every checkpoint key: training data options are the only
+    ones a key holds."""
+    if not options:
+        return spec
+    datasets = [replace(d, options={**d.options, **options}) for d in spec.datasets]
+    return replace(spec, datasets=datasets)
+
+
 def request(
     spec: SweepSpec,
     method: Entry,

@@ -63,6 +63,8 @@ class SweepLaunch:
     context_normals: bool | None = None
     #: ``-m``: the method entries kept (``spec`` is already narrowed; jobs narrow it again).
     methods: tuple[str, ...] = ()
+    #: ``-D``: dataset options over every dataset entry's (``spec`` has them; jobs add them again).
+    dataset_options: dict[str, Any] = field(default_factory=dict)
 
     def trainer_for_seed(self) -> Callable[[int], Any]:
         return lambda seed: trainer_options(self.settings, seed, **self.trainer)
@@ -168,6 +170,7 @@ def cluster_sweep(launch: SweepLaunch) -> None:
         per_job_store=per_job,
         threads=threads,
         methods=launch.methods,
+        dataset_options=launch.dataset_options,
     )
     folder = settings.artifact_root.parent / "logs" / "submitit" / spec.name
     names = [m.name for m in sweep_methods(spec)]

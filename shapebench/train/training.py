@@ -495,10 +495,12 @@ def ensure_checkpoint(
     if retrain:
         cmd.append("--retrain")
     # Why a (possibly long) training starts now, before its own output.
-    resume = " (resuming from its last checkpoint)" if (workdir / "last.ckpt").exists() else ""
+    if (workdir / "last.ckpt").exists():
+        why = f"the training of key {key} in {workdir.parent} is unfinished: resuming it"
+    else:
+        why = f"no checkpoint for key {key} in {workdir.parent}"
     print(
-        f"training {method.name} on {dataset.name}: no checkpoint for key {key} in "
-        f"{workdir.parent}{resume}",
+        f"training {method.name} on {dataset.name}: {why}",
         file=sys.stderr,
         flush=True,
     )
