@@ -29,6 +29,22 @@ def test_worker_command_line_replaces_the_launcher_options():
     ]
 
 
+def test_workers_visit_the_methods_in_orders_that_meet_once():
+    """Two workers (the default -j 2) go through the methods from opposite ends, so neither
+    trails the other through every method waiting for its cells; more workers start apart."""
+    from shapebench.sweeps.spec import Entry, worker_order
+
+    methods = [Entry(name) for name in "abcde"]
+
+    def names(worker: int) -> str:
+        return "".join(e.name for e in worker_order(methods, worker))
+
+    assert (names(0), names(1), names(2), names(7)) == ("abcde", "edcba", "cdeab", "cdeab")
+    assert worker_order(methods, 0) is not methods and worker_order([], 1) == []
+    # Every worker visits every method once.
+    assert all(sorted(names(w)) == list("abcde") for w in range(6))
+
+
 def cell_claimed(sb) -> bool:
     """Some process holds a cell's claim: it is computing that cell (cheaper to poll than the
     store, so that short cells are not missed)."""

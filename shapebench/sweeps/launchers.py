@@ -4,8 +4,10 @@ Each worker is the same ``shapebench sweep`` command run inline: workers coordin
 locks every run already takes (:mod:`shapebench.store.locks`): a cell is computed by the first
 worker
 that claims it and read back by the others, a checkpoint key is trained once while the others
-wait for it. Worker ``i`` visits the sweep's methods starting from the ``i``-th, so workers start
-on different methods instead of queueing behind one training. Torch gets ``cores // N`` threads
+wait for it. Workers visit the sweep's methods in different orders
+(:func:`shapebench.sweeps.spec.worker_order`: the second one backwards), so they start on
+different methods instead of queueing behind one training, and rarely wait for each other's
+cells. Torch gets ``cores // N`` threads
 per worker (``OMP_NUM_THREADS``), so N workers do not oversubscribe the machine.
 
 Nothing here is a scheduler: killing a worker loses at most its cell in progress (its lock is

@@ -2,8 +2,9 @@
 
 A trainable method's checkpoint is keyed by everything that changes its weights
 (:func:`shapebench.train.training.checkpoint_key`: options, code, training data, epochs, precision,
-devices, seed). For the built-in synthetic benchmark at the default profile, shapebench ships the
-checkpoints its maintainers trained with ``scripts/reference_checkpoints.py``, one folder per key::
+devices, seed). For the built-in synthetic benchmark at the default (standard) and quick profiles,
+shapebench ships the checkpoints its maintainers trained with ``scripts/reference_checkpoints.py``,
+one folder per key::
 
     shapebench/reference_checkpoints/<family>/<key>/model.ckpt       weights (no optimiser state)
     shapebench/reference_checkpoints/<family>/<key>/reference.json   how it was made
