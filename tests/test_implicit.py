@@ -91,6 +91,38 @@ def test_latent_optimisation_lowers_the_context_loss(scale):
     assert loss(z).mean() < loss(z0).mean()
 
 
+def test_an_igr_objects_test_time_loss_does_not_depend_on_its_batch_mates():
+    """IGR's test-time Eikonal samples are drawn per object (its context seed and the step):
+    the same object's loss is the same alone and beside another, step after step; from one
+    generator for the whole batch (no seeds) it is not."""
+    from shapebench_igr.method import IGR
+
+    torch.manual_seed(2)
+    module = IGR(IGR.Options(recipe="official", latent_dim=16, width=64, depth=4)).build_module(1)
+    a, b = (_sphere(200, 0.4, seed=s)[0] for s in (3, 4))
+    z = torch.randn(2, 16) * 0.01
+
+    def first_losses(points, seeds, steps=3) -> list[torch.Tensor]:
+        torch.manual_seed(0)  # the global generator, as complete_batch seeds it per batch
+        loss = module.completion_loss(points, None, 0, seeds)
+        return [loss(z[: len(points)])[0] for _ in range(steps)]
+
+    alone = first_losses(torch.stack([a]), [11])
+    beside = first_losses(torch.stack([a, b]), [11, 12])
+    assert all(torch.allclose(x, y, rtol=1e-6, atol=0) for x, y in zip(alone, beside, strict=True))
+    assert not torch.equal(alone[0], alone[1])  # a new draw every step
+    assert not torch.allclose(first_losses(torch.stack([a]), [13])[0], alone[0], rtol=1e-6, atol=0)
+
+    # One generator for the batch: A's draws depend on what else the batch holds.
+    def unseeded(points: torch.Tensor, index: int) -> torch.Tensor:
+        torch.manual_seed(0)
+        return module.completion_loss(points, None)(z[: len(points)])[index]
+
+    assert not torch.allclose(
+        unseeded(torch.stack([a]), 0), unseeded(torch.stack([b, a]), 1), rtol=1e-6, atol=0
+    )
+
+
 def test_initial_latents_are_seeded_per_object():
     ctxs = [
         Context(ObjectRef(str(i), "c"), np.zeros((1, 3)), np.zeros((1, 3)), seed=s)

@@ -110,5 +110,6 @@ class IGR(ImplicitMethod):
         # Context normals are read only when this option asks for them.
         nrm = require_normals(nrm, "test_normals=true", self.label) if o.test_normals else None
         z0 = initial_latents(contexts, o.latent_dim, o.init_std, self.device)
-        loss = self.module.completion_loss(pts, nrm, o.opt_eikonal_samples)
+        seeds = [c.seed for c in contexts]  # each object's draws its own (per_object_samples)
+        loss = self.module.completion_loss(pts, nrm, o.opt_eikonal_samples, seeds)
         return self.optimise_codes(loss, z0)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import torch
 from torch import nn
@@ -21,14 +21,17 @@ def surface_losses(
     normals: torch.Tensor | None,
     offsurface: str,
     eikonal_samples: int = 0,
+    off: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """IGR's loss terms per object (B,): manifold |f|, Eikonal, and the normal term.
 
     The Eikonal samples are drawn around ``points`` by ``offsurface``'s rule, or, with
     ``eikonal_samples`` > 0, around that many points drawn from them with replacement: the same
-    distribution, estimated with a sample count that does not shrink with the context.
+    distribution, estimated with a sample count that does not shrink with the context. ``off``
+    gives them already drawn (:func:`per_object_samples`).
     """
-    off = offsurface_samples(points, offsurface, count=eikonal_samples)
+    if off is None:
+        off = offsurface_samples(points, offsurface, count=eikonal_samples)
     x = torch.cat([points, off], dim=1).detach().requires_grad_(True)
     with torch.enable_grad():
         f = decoder(z, x)
@@ -38,6 +41,24 @@ def surface_losses(
     if normals is not None:
         terms["normals"] = normal_term(g[:, :n], normals)
     return terms
+
+
+def per_object_samples(
+    points: torch.Tensor, offsurface: str, count: int, seeds: Sequence[int], step: int
+) -> torch.Tensor:
+    """:func:`offsurface_samples` drawn object by object, each from a generator seeded by the
+    object's context seed and the search step: an object's test-time search then does not depend
+    on which objects share its batch. Drawn for the whole batch from one generator, they did: the
+    same object scored 5.1, 6.2 and 6.2 x1000 (chair/test-000, 50 points) and 23.7, 17.2 and 5.9
+    (mug/test-000) in benchmarks of 1, 4 and 10 test objects per category."""
+    from shapebench.hashing import stable_seed
+
+    out = []
+    for b, seed in enumerate(seeds):
+        with torch.random.fork_rng(devices=[points.device] if points.is_cuda else []):
+            torch.manual_seed(stable_seed("igr-eikonal", seed, step) % (2**63))
+            out.append(offsurface_samples(points[b : b + 1], offsurface, count=count))
+    return torch.cat(out)
 
 
 class IGRModule(OptionsModule):
@@ -80,14 +101,28 @@ class IGRModule(OptionsModule):
         return adam_halving(self.parameters(), o.lr, o.lr_halve_every, o.lr_halve_steps)
 
     def completion_loss(
-        self, points: torch.Tensor, normals: torch.Tensor | None, eikonal_samples: int = 0
+        self,
+        points: torch.Tensor,
+        normals: torch.Tensor | None,
+        eikonal_samples: int = 0,
+        seeds: Sequence[int] | None = None,
     ) -> Callable[[torch.Tensor], torch.Tensor]:
         """The per-object loss a latent code is optimised with at completion time
-        (``eikonal_samples``: the method's ``opt_eikonal_samples``, see :func:`surface_losses`)."""
+        (``eikonal_samples``: the method's ``opt_eikonal_samples``, see :func:`surface_losses`).
+        With ``seeds`` (one per object: the contexts' seeds) each object's Eikonal samples come
+        from its own generator (:func:`per_object_samples`); without, from torch's global one."""
         o = self.options
+        calls = 0
 
         def loss(z: torch.Tensor) -> torch.Tensor:
-            t = surface_losses(self.decoder, z, points, normals, o.offsurface, eikonal_samples)
+            nonlocal calls
+            off = None
+            if seeds is not None:
+                off = per_object_samples(points, o.offsurface, eikonal_samples, seeds, calls)
+            calls += 1
+            t = surface_losses(
+                self.decoder, z, points, normals, o.offsurface, eikonal_samples, off=off
+            )
             total = t["manifold"] + o.eikonal_weight * t["eikonal"] + o.latent_reg * z.abs().mean(1)
             if normals is not None:
                 total = total + o.normal_weight * t["normals"]
