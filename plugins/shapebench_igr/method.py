@@ -81,6 +81,8 @@ class IGR(ImplicitMethod):
     supervision = frozenset({Supervision.SURFACE_POINTS})
     Options = IGROptions
     module_path = "shapebench_igr.module:IGRModule"
+    # stable_seed derives each object's test-time draws (module.per_object_samples).
+    code_modules = (*ImplicitMethod.code_modules, "shapebench.hashing")
     #: Tiny options for ``shapebench check``: a small network, one epoch, coarse meshes.
     check_options = {
         "latent_dim": 8,
