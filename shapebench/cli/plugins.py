@@ -12,6 +12,7 @@ from shapebench.cli.app import (
     _parse,
     cli,
 )
+from shapebench.config import DEFAULT_PROFILE
 
 
 @cli.command()
@@ -35,7 +36,8 @@ _PROFILE_OPTION = click.option(
     "--profile",
     default=None,
     help="Also show the values in effect with this profile (configs/<kind>s/<name>.yaml and "
-    "configs/profiles/<profile>.yaml applied) [default: standard, or $SHAPEBENCH_PROFILE].",
+    f"configs/profiles/<profile>.yaml applied) [default: {DEFAULT_PROFILE}, or "
+    "$SHAPEBENCH_PROFILE].",
 )
 
 
