@@ -301,6 +301,42 @@ def test_variant_key_and_label():
     assert auto_label("igr", {"width": 64, "lr": 1e-3}) == "igr[lr=0.001,width=64]"
 
 
+def test_a_checkpoint_given_by_path_is_keyed_by_its_contents(tmp_path):
+    """``run --checkpoint``: a copy of the file elsewhere (a fresh clone, another machine)
+    gives the same cells and row; an edited file does not; the row names the file."""
+    from shapebench.train.references import given_checkpoint
+
+    a, b = tmp_path / "a" / "model.ckpt", tmp_path / "b" / "copy.ckpt"
+    a.parent.mkdir()
+    b.parent.mkdir()
+    a.write_bytes(b"weights" * 100)
+    b.write_bytes(a.read_bytes())
+    given_a, given_b = given_checkpoint(a), given_checkpoint(b)
+    assert given_a.digest == given_b.digest and len(given_a.digest) == 16
+    assert (given_a.name, given_b.name) == ("model.ckpt", "copy.ckpt")
+    b.write_bytes(b"other weights")
+    assert given_checkpoint(b).digest != given_a.digest
+
+    p, cfg = Protocol(), {"name": "msc", "options": {}, "code": "c"}
+    row_a = make_variant(
+        "msc", cfg, {}, p, "quick", checkpoint_file=given_a.digest, checkpoint_name=given_a.name
+    )
+    row_b = make_variant(
+        "msc", cfg, {}, p, "quick", checkpoint_file=given_b.digest, checkpoint_name=given_b.name
+    )
+    assert row_a.key == row_b.key and row_a.label == "msc[checkpoint=model.ckpt]"
+
+
+def test_a_shipped_reference_given_by_path_is_named_by_its_key():
+    from shapebench.train.references import SHIPPED, find, given_checkpoint
+
+    info = sorted(SHIPPED.glob("*/*/reference.json"))[0]
+    ref = find(info.parent.parent.name, info.parent.name)
+    given = given_checkpoint(ref.checkpoint)
+    assert given.name == f"{info.parent.parent.name}/{info.parent.name}"
+    assert given.digest == ref.info["sha256"][:16]
+
+
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_a_sigma_variant_gets_its_own_row(shapebench):
     sb = shapebench

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ from shapebench.registry.resolve import (
 )
 from shapebench.registry.variant import Variant, make_variant
 from shapebench.store.tracking import Tracker
+from shapebench.train.references import given_checkpoint
 from shapebench.train.training import (
     apply_trainer,
     checkpoint_key,
@@ -93,11 +93,6 @@ def _check_splits(dataset: Dataset, splits: list[str] | None) -> list[str]:
             "check the dataset options that select objects (shapebench datasets lists them)",
         )
     return splits
-
-
-def _given_checkpoint_key(path: str) -> str:
-    st = os.stat(path)
-    return f"{Path(path).resolve()}:{st.st_size}:{int(st.st_mtime)}"
 
 
 @dataclass
@@ -187,7 +182,7 @@ def seed_plans(
         origin = None  # of the weights: see shapebench.train.references
         if method.cls.trains:
             if req.checkpoint:
-                checkpoint["key"] = _given_checkpoint_key(req.checkpoint)
+                checkpoint["key"] = given_checkpoint(req.checkpoint).digest
             else:
                 checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
                 training = training_identity(seed_method, trainer)
@@ -263,6 +258,7 @@ def _variant(
         # training scale (-D train_per_category=20) shows in the label too, so that the rows of
         # a data-scaling sweep read apart.
         training_overrides.update(_training_data_overrides(dataset, settings))
+    given = given_checkpoint(req.checkpoint) if req.checkpoint else None
     return make_variant(
         method.name,
         method.config(),
@@ -272,7 +268,8 @@ def _variant(
         training=training,
         training_overrides=training_overrides,
         train_data=dataset.training_fingerprint() if training is not None else None,
-        checkpoint_file=_given_checkpoint_key(req.checkpoint) if req.checkpoint else None,
+        checkpoint_file=given.digest if given else None,
+        checkpoint_name=given.name if given else None,
         label=req.label,
         weights=weights,
     )

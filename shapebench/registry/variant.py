@@ -52,11 +52,14 @@ def make_variant(
     training_overrides: dict[str, Any] | None = None,
     train_data: str | None = None,
     checkpoint_file: str | None = None,
+    checkpoint_name: str | None = None,
     label: str | None = None,
     weights: str | None = None,
 ) -> Variant:
     """The row a run belongs to. ``training`` is the training identity without the seed (seeds
     are samples of one row, not rows); ``train_data`` the dataset's training fingerprint;
+    ``checkpoint_file`` the digest of a checkpoint given by path (``run --checkpoint``),
+    ``checkpoint_name`` how the row names it;
     ``weights`` is ``"local"`` for a local training of a key that has shipped weights
     (:mod:`shapebench.train.references`): a row of its own, labelled ``weights=local``, so
     that a retrained seed never sits beside the shipped training of the same seed. The shipped
@@ -80,7 +83,7 @@ def make_variant(
     if profile != default_profile():
         overrides["profile"] = profile
     if checkpoint_file:
-        overrides["checkpoint"] = checkpoint_file.rsplit("/", 1)[-1].split(":", 1)[0]
+        overrides["checkpoint"] = checkpoint_name or checkpoint_file
     if protocol.context_normals:
         overrides["+normals"] = True
     if protocol.context == "crop":

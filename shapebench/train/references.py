@@ -29,6 +29,7 @@ leaderboard row: ``reference:<sha256 of the file>``, or nothing for a local trai
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -94,6 +95,46 @@ def find(family: str, key: str) -> Reference | None:
     if not (folder / CHECKPOINT_FILE).is_file():
         return None
     return Reference(folder, info)
+
+
+def with_digest(sha256: str) -> Reference | None:
+    """The shipped reference whose file has this digest (a checkpoint given by path that is a
+    shipped reference, or a copy of one), if any."""
+    base = root()
+    if base is None:
+        return None
+    for info_file in sorted(base.glob(f"*/*/{INFO_FILE}")):
+        ref = find(info_file.parent.parent.name, info_file.parent.name)
+        if ref is not None and ref.info["sha256"] == sha256:
+            return ref
+    return None
+
+
+@dataclass(frozen=True)
+class GivenCheckpoint:
+    """A checkpoint named by path (``run --checkpoint``): what keys and rows record about it."""
+
+    #: The first 16 hex digits of the file's sha256: its identity in cell and row keys, so a
+    #: copy elsewhere (a fresh clone, another machine) has the same keys and an edited file not.
+    digest: str
+    #: How rows name it: the shipped reference it is (``family/key``), else its file name.
+    name: str
+
+
+def given_checkpoint(path: str | Path) -> GivenCheckpoint:
+    """The identity of the checkpoint file at ``path``."""
+    file = Path(path).resolve()
+    st = file.stat()
+    sha256 = _file_sha256_cached(str(file), st.st_size, st.st_mtime_ns)
+    ref = with_digest(sha256)
+    name = f"{ref.folder.parent.name}/{ref.folder.name}" if ref is not None else file.name
+    return GivenCheckpoint(sha256[:16], name)
+
+
+@functools.lru_cache(maxsize=32)
+def _file_sha256_cached(path: str, size: int, mtime_ns: int) -> str:
+    # size and mtime in the arguments: a file rewritten in place is read again
+    return file_sha256(Path(path))
 
 
 def file_sha256(path: Path) -> str:
