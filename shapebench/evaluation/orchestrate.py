@@ -25,7 +25,7 @@ from shapebench.registry.resolve import (
 )
 from shapebench.registry.variant import Variant, make_variant
 from shapebench.store.tracking import Tracker
-from shapebench.train.references import given_checkpoint
+from shapebench.train.references import GivenCheckpoint, given_checkpoint
 from shapebench.train.training import (
     apply_trainer,
     checkpoint_key,
@@ -173,6 +173,8 @@ def seed_plans(
     """The plan of each seed of ``req``: what :func:`evaluate` runs, and what a cluster launcher
     looks at to decide which cells and trainings are missing (:mod:`shapebench.sweeps.plan`)."""
     method, dataset = resolved.method, resolved.dataset
+    # Read (hashed) once: the same file serves every seed and the row.
+    given = given_checkpoint(req.checkpoint) if req.checkpoint else None
     out = []
     for seed in req.seeds:
         trainer = trainer_for_seed(seed)
@@ -181,8 +183,8 @@ def seed_plans(
         training = None
         origin = None  # of the weights: see shapebench.train.references
         if method.cls.trains:
-            if req.checkpoint:
-                checkpoint["key"] = given_checkpoint(req.checkpoint).digest
+            if given is not None:
+                checkpoint["key"] = given.digest
             else:
                 checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
                 training = training_identity(seed_method, trainer)
@@ -195,7 +197,7 @@ def seed_plans(
                     checkpoint["weights"] = origin
                 elif reference is not None:
                     origin = "local"  # a row beside the reference's: its label says so
-        variant = _variant(seed_method, dataset, req, settings, trainer, training, origin)
+        variant = _variant(seed_method, dataset, req, settings, trainer, training, origin, given)
         plan = RunPlan(
             seed_method,
             dataset,
@@ -244,8 +246,10 @@ def _variant(
     trainer: TrainerOptions,
     training: dict[str, Any] | None,
     weights: str | None = None,
+    given: GivenCheckpoint | None = None,
 ) -> Variant:
-    """The leaderboard row of this run (see :mod:`shapebench.registry.variant`)."""
+    """The leaderboard row of this run (see :mod:`shapebench.registry.variant`); ``given``: the
+    checkpoint file of ``run --checkpoint``."""
     training_overrides: dict[str, Any] = {}
     if training is not None:
         training = {k: v for k, v in training.items() if k != "seed"}
@@ -258,7 +262,6 @@ def _variant(
         # training scale (-D train_per_category=20) shows in the label too, so that the rows of
         # a data-scaling sweep read apart.
         training_overrides.update(_training_data_overrides(dataset, settings))
-    given = given_checkpoint(req.checkpoint) if req.checkpoint else None
     return make_variant(
         method.name,
         method.config(),
