@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/reference_checkpoints.py [--methods igr,msc] [--seeds 0,1,2]
         [--profile quick|standard] [--workspace DIR] [--storage float32|float16] [--export-only]
-        [--keep-stale]
+        [--keep-stale] [-O KEY=VALUE ...]
 
 For every trainable method of the default sweep (``configs/sweeps/default.yaml``), or those
 ``--methods`` names, at the default profile (or ``--profile``) and each of ``--seeds`` (0), it
@@ -13,7 +13,9 @@ state) and ``reference.json`` (key, command, versions, machine, wall time, final
 ``shapebench/reference_checkpoints/<family>/<key>/``. Folders of a family and profile whose key
 is no longer among those exported are removed unless ``--keep-stale`` (so ship every seed of a
 family in one call); another profile's are kept. Methods sharing a checkpoint (``msc`` and
-``msc-noopt``) are trained once. See :mod:`shapebench.train.references`.
+``msc-noopt``) are trained once. ``-O`` ships a reference of other method options (a larger step
+budget, say: ``-O steps=14400``), keyed by them like ``shapebench train -O`` and installed
+wherever a run asks for that key. See :mod:`shapebench.train.references`.
 
 A training is exported only if it ran at the commit the tree is at now, with no uncommitted
 changes (the tags of its MLflow run): the key digests the method's code, not every module a
@@ -115,6 +117,14 @@ def main(argv: list[str] | None = None) -> None:
         help="float32 (as trained) or float16 (weights rounded to half precision, for files "
         f"that would exceed {MAX_BYTES / 1e6:g} MB)",
     )
+    parser.add_argument(
+        "-O",
+        dest="options",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="method option, as `shapebench train -O` (repeatable; part of the key)",
+    )
     parser.add_argument("--export-only", action="store_true", help="never train")
     parser.add_argument("--keep-stale", action="store_true")
     parser.add_argument(
@@ -129,6 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
 
+    from shapebench.api.options import parse_assignments
     from shapebench.config import make_settings
     from shapebench.store.provenance import git_commit
     from shapebench.sweeps.spec import load_sweep, sweep_methods
@@ -149,8 +160,11 @@ def main(argv: list[str] | None = None) -> None:
     # started after it would be tagged as made from a modified tree.
     finished = []
     seeds = [int(seed) for seed in args.seeds.split(",")]
+    options = parse_assignments(args.options, "-O")
     for name, seed in [(name, seed) for name in names for seed in seeds]:
-        training = reference_training(name, DATASET, args.profile, seed, Path(args.workspace))
+        training = reference_training(
+            name, DATASET, args.profile, seed, Path(args.workspace), options=options
+        )
         method, key = training.method, training.key
         if not method.cls.trains:
             continue
@@ -164,6 +178,8 @@ def main(argv: list[str] | None = None) -> None:
             command += ["--seed", str(seed)]
         if args.profile:
             command += ["--profile", args.profile]
+        for option in args.options:
+            command += ["-O", option]
         record = read_done(workdir)
         if record is None and args.export_only:
             print(f"{name}: no finished training of key {key} in {workdir.parent}; skipped")

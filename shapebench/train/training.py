@@ -152,9 +152,11 @@ def reference_training(
     seed: int,
     workspace: Path,
     cache_dir: Path | None = None,
+    options: dict[str, Any] | None = None,
 ) -> ReferenceTraining:
     """The training behind ``name``'s reference at ``profile`` (None: the default) and ``seed``
-    on ``dataset``, with no command-line overrides. One device, as the references are trained
+    on ``dataset``, with the method ``options`` of ``-O`` (None: none; e.g. a larger step
+    budget) and no other command-line overrides. One device, as the references are trained
     (``shapebench train --devices 1``): "auto" would count every GPU of a multi-GPU machine, and
     the world size is part of the key. ``workspace`` and ``cache_dir`` (None: the configured
     cache) are the settings' store and cache."""
@@ -165,7 +167,7 @@ def reference_training(
     settings = make_settings(None, cache_dir, profile, workspace)
     registry = get_registry()
     trainer = replace(profile_trainer(settings, seed), devices=1)
-    method = apply_trainer(resolve_method(registry, name, settings, {}), trainer)
+    method = apply_trainer(resolve_method(registry, name, settings, options or {}), trainer)
     data = resolve_dataset(registry, dataset, settings, None, {})
     return ReferenceTraining(settings, method, data, trainer, checkpoint_key(method, data, trainer))
 
