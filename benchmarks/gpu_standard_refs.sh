@@ -93,22 +93,25 @@ from a copy of the tree at commit $commit (the copy has no .git: trained_at read
 before=$(mktemp)
 find shapebench/reference_checkpoints -mindepth 2 -maxdepth 2 -type d | sort >"$before"
 : >/tmp/unfinished
-for i in "${!jobs[@]}"; do
+for i in "${!jobs[@]}"; do # the exports run at once: each writes a folder of its own
     read -r name seed opts <<<"${jobs[$i]}"
-    {
-        echo "--- $name seed $seed ${opts}"
-        grep -h "training plan\|per optimiser step\|Error\|error" "/tmp/train-$i.log" | head -5
-        tail -2 "/tmp/train-$i.log"
-    } >>"$log"
     storage=float32
     case $name in pcn | convonet | pointr) storage=float16 ;; esac
     export_args=(--profile "$profile" --methods "$name" --seeds "$seed" --workspace "$ws"
         --export-only --allow-dirty --keep-stale --storage "$storage" --note "$note")
     for o in $opts; do export_args+=(-O "$o"); done
-    if ! $py scripts/reference_checkpoints.py "${export_args[@]}" 2>&1 | tee -a "$log" |
-        grep -q "MB), trained in"; then
-        echo "$i" >>/tmp/unfinished
-    fi
+    $py scripts/reference_checkpoints.py "${export_args[@]}" >"/tmp/export-$i.log" 2>&1 &
+done
+wait
+for i in "${!jobs[@]}"; do
+    read -r name seed opts <<<"${jobs[$i]}"
+    {
+        echo "--- $name seed $seed ${opts}"
+        grep -h "Error\|error" "/tmp/train-$i.log" | head -3
+        tail -2 "/tmp/train-$i.log"
+        tail -3 "/tmp/export-$i.log"
+    } >>"$log"
+    grep -q "MB), trained in" "/tmp/export-$i.log" || echo "$i" >>/tmp/unfinished
 done
 find shapebench/reference_checkpoints -mindepth 2 -maxdepth 2 -type d | sort |
     comm -13 "$before" - >/tmp/new-refs
