@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from shapebench.geometry.sampling import sample_surface
 from shapebench.preprocess import PreprocessParams, prepare_mesh
 from shapebench.preprocess.normalize import normalize
+from shapebench.preprocess import visibility
 from shapebench.preprocess.visibility import fibonacci_viewpoints, visible_points
 
 
@@ -71,6 +73,18 @@ def test_the_inside_of_an_open_cup_is_visible_and_viewpoints_surround_the_object
     views = fibonacci_viewpoints(100, 3.0)
     assert np.allclose(np.linalg.norm(views, axis=1), 3.0)
     assert np.abs(views.mean(axis=0)).max() < 0.05  # spread evenly around the object
+
+
+def test_ray_casting_without_embree_warns_once_naming_the_fix(monkeypatch):
+    # A lent GPU machine without embreex spent its whole time box preparing 101 of ~20k files.
+    monkeypatch.setattr(trimesh.ray, "has_embree", False)
+    visibility._warn_without_embree.cache_clear()
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    with pytest.warns(visibility.SlowRayCastingWarning, match="pip install embreex") as seen:
+        visible_points(sphere, 50, 4, np.random.default_rng(0))
+        visible_points(sphere, 50, 4, np.random.default_rng(0))
+    assert len(seen) == 1
+    visibility._warn_without_embree.cache_clear()
 
 
 def test_prepare_mesh_sizes_and_determinism():
