@@ -49,7 +49,9 @@ from shapebench.cli.app import (
     "--checkpoint",
     type=click.Path(exists=True),
     default=None,
-    help="Use this checkpoint instead of training (trainable methods).",
+    help="Use this checkpoint instead of training (trainable methods). Its rows are keyed by "
+    "the file's sha256, so a copy of it anywhere reuses them; a shipped reference is named "
+    "by its family and key.",
 )
 @click.option(
     "--samples",
