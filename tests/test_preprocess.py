@@ -7,9 +7,8 @@ import pytest
 import trimesh
 
 from shapebench.geometry.sampling import sample_surface
-from shapebench.preprocess import PreprocessParams, prepare_mesh
+from shapebench.preprocess import PreprocessParams, prepare_mesh, visibility
 from shapebench.preprocess.normalize import normalize
-from shapebench.preprocess import visibility
 from shapebench.preprocess.visibility import fibonacci_viewpoints, visible_points
 
 
