@@ -37,22 +37,7 @@ pairs=/tmp/sweep-pairs.yaml
 py=${PYTHON:-python3}
 stamp() { echo "== $(date -u +%H:%M:%S) +$((SECONDS - t0)) s: $*"; }
 
-if [ -z "${SKIP_WHEELS:-}" ] && compgen -G ".whl/*.whl" >/dev/null; then
-    stamp "installing carried wheels"
-    $py -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-        --target /tmp/site .whl/*.whl || exit 1
-    export PYTHONPATH=$PWD:$PWD/plugins:$PWD/datasets:$PWD/.gpu/dist:/tmp/site
-fi
-# Without embree trimesh casts the visibility rays about 1,000 times slower: a lease of 2026-11-29
-# spent its whole box preparing 101 files. Refuse in seconds instead.
-$py -c "import embreex" 2>/dev/null || {
-    echo "embreex is not importable: carry its wheel in .whl/ (benchmarks/README.md)" >&2
-    exit 1
-}
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null
-$py -c "import torch, pytorch_lightning as L, mlflow; print('torch', torch.__version__, \
-'lightning', L.__version__, 'mlflow', mlflow.__version__, 'cuda', torch.cuda.is_available())" ||
-    exit 1
+source benchmarks/gpu_machine.sh
 
 stamp "prepare ($(nproc) workers) while the bench times each method's step on the idle GPU"
 $py benchmarks/bench_training.py --device cuda --steps 60 --warmup 10 --rounds 1 \

@@ -44,24 +44,10 @@ jobs_default="pcn 0 steps=14400;occnet 0 steps=14400"
 jobs_default+=";msc 2;occnet 2;convonet 2;pcn 2;igr 2;deepsdf 2;pcn 1;igr 1;deepsdf 1"
 jobs_default+=";msc-hier 0;msc-hier 1;msc-hier 2;pointr 0;pointr 1;pointr 2"
 IFS=';' read -ra jobs <<<"${JOBS:-$jobs_default}"
-stamp() { echo "== $(date -u +%H:%M:%S) +$((SECONDS - t0)) s: $*" | tee -a "$log"; }
+stamp() { echo "== $(date -u +%H:%M:%S) +$((SECONDS - t0)) s: $*"; }
+exec > >(tee -a "$log") 2>&1 # everything printed is in log.txt too
 
-if [ -z "${SKIP_WHEELS:-}" ] && compgen -G ".whl/*.whl" >/dev/null; then
-    stamp "installing carried wheels"
-    $py -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-        --target /tmp/site .whl/*.whl || exit 1
-    export PYTHONPATH=$PWD:$PWD/plugins:$PWD/datasets:$PWD/.gpu/dist:/tmp/site
-fi
-# Without embree trimesh casts the visibility rays about 1,000 times slower: a lease of 2026-11-29
-# spent its whole box preparing 101 files. Refuse in seconds instead.
-$py -c "import embreex" 2>/dev/null || {
-    echo "embreex is not importable: carry its wheel in .whl/ (benchmarks/README.md)" >&2
-    exit 1
-}
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>&1 | tee -a "$log"
-$py -c "import torch, pytorch_lightning as L, mlflow, trimesh; print('torch', torch.__version__, \
-'lightning', L.__version__, 'mlflow', mlflow.__version__, 'cuda', torch.cuda.is_available())" \
-    2>&1 | tee -a "$log" || exit 1
+source benchmarks/gpu_machine.sh
 
 methods=()
 for job in "${jobs[@]}"; do
@@ -70,7 +56,7 @@ for job in "${jobs[@]}"; do
 done
 stamp "prepare the training split on $(nproc) workers"
 $py -m shapebench prepare -d synthetic --profile "$profile" "${methods[@]}" --split validation \
-    -j "$(nproc)" -q 2>&1 | tail -3 | tee -a "$log"
+    -j "$(nproc)" -q 2>&1 | tail -3
 
 pids=()
 for i in "${!jobs[@]}"; do
@@ -99,6 +85,7 @@ from a copy of the tree at commit $commit (the copy has no .git: trained_at read
 before=$(mktemp)
 find shapebench/reference_checkpoints -mindepth 2 -maxdepth 2 -type d | sort >"$before"
 : >/tmp/unfinished
+exports=()
 for i in "${!jobs[@]}"; do # the exports run at once: each writes a folder of its own
     read -r name seed opts <<<"${jobs[$i]}"
     storage=float32
@@ -107,8 +94,9 @@ for i in "${!jobs[@]}"; do # the exports run at once: each writes a folder of it
         --export-only --allow-dirty --keep-stale --storage "$storage" --note "$note")
     for o in $opts; do export_args+=(-O "$o"); done
     $py scripts/reference_checkpoints.py "${export_args[@]}" >"/tmp/export-$i.log" 2>&1 &
+    exports+=($!)
 done
-wait
+for pid in "${exports[@]}"; do wait "$pid"; done # not a bare wait: it would wait for the tee
 for i in "${!jobs[@]}"; do
     read -r name seed opts <<<"${jobs[$i]}"
     {
