@@ -216,6 +216,8 @@ def main(argv: list[str] | None = None) -> None:
             + ("-dirty" if tags.get("git.dirty") == "True" else ""),
             "exported": datetime.now(UTC).isoformat(timespec="seconds"),
         }
+        if options:  # what the key was computed with: tests recompute it from reference.json
+            info["options"] = options
         if args.note:
             info["note"] = args.note
         ref = export(Path(record["path"]), target / family / key, info, args.storage)

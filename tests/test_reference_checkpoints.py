@@ -94,6 +94,7 @@ def test_every_shipped_reference_is_still_the_key_of_its_profile_and_seed(tmp_pa
             info["seed"],
             tmp_path,
             tmp_path / "cache",
+            options=info.get("options"),  # a reference of a larger budget, say (-O)
         ).key
         assert key == info["key"] == ref.folder.name, (
             f"{ref.folder}: {info['method']} at profile {info['profile']!r}, seed "
@@ -101,6 +102,22 @@ def test_every_shipped_reference_is_still_the_key_of_its_profile_and_seed(tmp_pa
             f"scripts/reference_checkpoints.py --methods {info['method']} "
             f"--profile {info['profile']} --seeds {info['seed']}"
         )
+
+
+def test_a_reference_of_other_method_options_has_the_key_of_those_options(tmp_path):
+    """scripts/reference_checkpoints.py -O steps=N ships what `shapebench train -O steps=N`
+    would train: the options reach the key, and the profile's own values give its key."""
+    from shapebench.train.training import reference_training
+
+    def key(**options):
+        return reference_training(
+            "occnet", "synthetic", "standard", 0, tmp_path, tmp_path / "cache", options=options
+        ).key
+
+    default = key()
+    assert key(steps=3600) == default  # standard's own budget for OccNet
+    assert key(steps=14400) != default
+    assert key(steps=14400) == key(steps=14400)
 
 
 def _make_reference(sb, root) -> refs.Reference:
