@@ -32,16 +32,13 @@ def main() -> None:
     parser.add_argument("--cache-dir", default=None)
     args = parser.parse_args()
 
-    from shapebench.config import make_settings
+    from retrieval_floor import synthetic_objects  # this folder is on the path of its scripts
+    from shapebench_synthetic.shapes import novel_categories
+
     from shapebench.geometry.nearest import nearest_distances
 
     sizes = [int(s) for s in args.sizes.split(",")]
-    cache = make_settings(None, args.cache_dir, None, None).cache_dir / "synthetic"
-    folders = sorted(cache.glob("*/objects"), key=lambda d: len(list(d.glob("*__test-*.npz"))))
-    if not folders:
-        raise SystemExit(f"no preprocessed synthetic objects under {cache}: prepare them first")
-    objects = folders[-1]
-    from shapebench_synthetic.shapes import novel_categories
+    objects = synthetic_objects(args.cache_dir, "*__test-*.npz")
 
     novel = set(novel_categories())
 
@@ -54,8 +51,8 @@ def main() -> None:
     floors: dict[int, list[float]] = {n: [] for n in sizes}
     for test in tests:
         gt = np.load(test)["gt_points"]
-        rng = np.random.default_rng(0)
         for n in sizes:
+            rng = np.random.default_rng(n)  # each size its own draw: rows do not depend on --sizes
             subset = gt[rng.choice(len(gt), size=min(n, len(gt)), replace=False)]
             floors[n].append(1000 * float(np.mean(nearest_distances(gt, subset) ** 2)))
     print(f"{objects}: {len(tests)} {args.split} test objects, {len(gt)} ground-truth points each")

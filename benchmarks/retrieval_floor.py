@@ -29,6 +29,18 @@ from pathlib import Path
 import numpy as np
 
 
+def synthetic_objects(cache_dir: str | None, most: str) -> Path:
+    """The cache's folder of preprocessed synthetic objects holding the most files matching
+    ``most`` (``"*__train-*.npz"``: the largest training split prepared)."""
+    from shapebench.config import make_settings
+
+    cache = make_settings(None, cache_dir, None, None).cache_dir / "synthetic"
+    folders = sorted(cache.glob("*/objects"), key=lambda d: len(list(d.glob(most))))
+    if not folders:
+        raise SystemExit(f"no preprocessed synthetic objects under {cache}: prepare them first")
+    return folders[-1]
+
+
 def _subsample(points: np.ndarray, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     return points[rng.choice(len(points), size=min(n, len(points)), replace=False)]
@@ -42,17 +54,11 @@ def main() -> None:
     parser.add_argument("--cache-dir", default=None)
     args = parser.parse_args()
 
-    from shapebench.config import make_settings
     from shapebench.geometry.nearest import kdtree, nearest_distances
 
     sizes = [int(s) for s in args.sizes.split(",")]
     contexts = [int(k) for k in args.contexts.split(",")]
-    cache = make_settings(None, args.cache_dir, None, None).cache_dir / "synthetic"
-    # The folder of preprocessed objects holding the most training objects.
-    folders = sorted(cache.glob("*/objects"), key=lambda d: len(list(d.glob("*__train-*.npz"))))
-    if not folders:
-        raise SystemExit(f"no preprocessed synthetic objects under {cache}: prepare them first")
-    objects = folders[-1]
+    objects = synthetic_objects(args.cache_dir, "*__train-*.npz")
     tests = sorted(p for p in objects.glob("*__test-*.npz"))
     trained = {p.name.split("__")[0] for p in objects.glob("*__train-*.npz")}
     tests = [p for p in tests if p.name.split("__")[0] in trained]
