@@ -27,3 +27,17 @@ def test_ruff_format_clean():
         [ruff, "format", "--check", str(ROOT)], capture_output=True, text=True, cwd=ROOT
     )
     assert res.returncode == 0, res.stdout + "\nrun: ruff format ."
+
+
+@pytest.mark.parametrize(
+    "script",
+    sorted(
+        p.relative_to(ROOT).as_posix()
+        for d in ("benchmarks", "scripts")
+        for p in (ROOT / d).glob("*.sh")
+    ),
+)
+def test_shell_scripts_parse(script):
+    """The GPU scripts run only on a lent machine, in minutes no one can spare for a typo."""
+    res = subprocess.run(["bash", "-n", script], capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
