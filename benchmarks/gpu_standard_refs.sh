@@ -116,20 +116,9 @@ tar -czf "$out/refs.tgz" -T /tmp/new-refs && ls -l "$out/refs.tgz"
 : >/tmp/ckpt-dirs
 room=$((58 - $(du -sm "$out" | cut -f1)))
 while read -r i; do
-    read -r name seed opts <<<"${jobs[$i]}"
-    dir=$($py - "$profile" "$ws" "$name" "$seed" $opts <<'EOF'
-import sys
-from pathlib import Path
-
-from shapebench.api.options import parse_assignments
-from shapebench.train.training import checkpoint_dir, reference_training
-
-profile, ws, name, seed, *opts = sys.argv[1:]
-options = parse_assignments(opts, "-O")
-t = reference_training(name, "synthetic", profile, int(seed), Path(ws), options=options)
-print(checkpoint_dir(t.settings, t.method, t.key))
-EOF
-)
+    # the export named the folder it looked in: "M: no finished training of key K in DIR; skipped"
+    dir=$(sed -n 's/.*no finished training of key \([0-9a-f]*\) in \(.*\); skipped$/\2\/\1/p' \
+        "/tmp/export-$i.log")
     [ -n "$dir" ] && [ -d "$dir" ] || continue
     mb=$(du -sm "$dir" | cut -f1)
     [ "$mb" -lt "$room" ] || continue
