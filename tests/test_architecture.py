@@ -21,9 +21,8 @@ MAX_TOP_LEVEL_MODULES = 12
 #: The built-in plugin packages: import-linter's root packages other than the core itself (read
 #: from pyproject.toml as text: tomllib is 3.11+), so a built-in added there, as every new one
 #: must be for the contracts to cover it, is checked here too.
-_ROOT_PACKAGES = re.search(
-    r"^root_packages = \[(.*?)\]", (ROOT / "pyproject.toml").read_text(), re.M | re.S
-)
+_PYPROJECT = (ROOT / "pyproject.toml").read_text()
+_ROOT_PACKAGES = re.search(r"^root_packages = \[(.*?)\]", _PYPROJECT, re.M | re.S)
 BUILTIN_PLUGINS = tuple(
     name for name in re.findall(r'"([\w.]+)"', _ROOT_PACKAGES.group(1)) if name != "shapebench"
 )
@@ -143,8 +142,7 @@ def test_the_core_names_no_builtin_plugin():
 def test_every_builtin_entry_point_is_a_root_package_of_the_contracts():
     """A built-in registered in pyproject.toml but left out of import-linter's root packages
     would be checked by no contract and by no test above."""
-    text = (ROOT / "pyproject.toml").read_text()
-    block = re.search(r"^\[project\.entry-points\.shapebench\]\n(.*?)\n\n", text, re.M | re.S)
+    block = re.search(r"^\[project\.entry-points\.shapebench\]\n(.*?)\n\n", _PYPROJECT, re.M | re.S)
     packages = {m.split(".")[0] for m in re.findall(r'= "([\w.]+)"', block.group(1))}
     packages.discard("shapebench")
     assert packages, "no built-in entry point found in pyproject.toml"
