@@ -100,6 +100,30 @@ def test_plan_lists_missing_cells_then_nothing_once_the_sweep_ran(shapebench, tm
     assert res.returncode == 0 and "nothing to submit" in res.stdout, res.stderr
 
 
+def test_a_sweep_run_one_seed_at_a_time_fills_the_whole_sweeps_cells(shapebench, tmp_path):
+    """`shapebench sweep FILE --seeds 1` runs that seed's cells only, with the whole sweep's keys
+    (the whole sweep's --status then counts them finished); a seed the file lacks is one clear
+    error naming the file's seeds."""
+    sb = shapebench
+    options = ", ".join(o.replace("=", ": ") for o in TINY[1::2])
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(
+        f"name: seeds\nmethods: [gauss]\ndatasets: [{{name: synthetic, options: {{{options}}}}}]\n"
+        f"splits: [novel]\ncontexts: [{TINY_CONTEXTS[1]}]\nseeds: [0, 1]\n"
+    )
+    res = sb("sweep", str(sweep), "-q", "--seeds", "1")
+    assert res.returncode == 0, res.stderr
+    assert "sweep progress: 2/2 cells" in res.stdout  # two context sizes
+    res = sb("sweep", str(sweep), "--status")
+    assert "4 cells: 2 finished, 2 not submitted" in res.stdout, res.stdout
+    runs = sb.cell_runs("synthetic-novel")
+    assert [r.data.params["seed"] for r in runs] == ["1", "1"]
+    res = sb("sweep", str(sweep), "--seeds", "0,2")
+    assert res.returncode != 0
+    assert "no seed 2" in res.stderr and "its seeds: 0, 1" in res.stderr
+    assert "Traceback" not in res.stderr
+
+
 def test_status_tells_trainings_shipped_weights_serve_from_trainings_to_run(shapebench, tmp_path):
     """MSC's quick reference ships (shapebench/reference_checkpoints), PCN's does not: --status
     must not count installing shipped weights as a training still to run."""
@@ -143,3 +167,6 @@ def test_a_job_rebuilds_the_sweep_narrowed_as_it_was_submitted(tmp_path):
     rebuilt = sweep_methods(ctx.spec())
     assert rebuilt == sweep_methods(only_methods(load_sweep(path), ["msc"]))
     assert {e.name for e in rebuilt} == {"msc"} and len(rebuilt) == 3
+    three = path.with_name("standard.yaml")  # seeds 0, 1 and 2
+    ctx = JobContext(str(three), None, "", str(tmp_path), str(tmp_path), {}, seeds=(1,))
+    assert ctx.spec().seeds == [1]

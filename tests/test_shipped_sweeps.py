@@ -111,6 +111,22 @@ def test_a_sweep_narrowed_to_some_methods_keeps_their_entries_and_keys(tmp_path)
     assert "msc-noopt" in err.value.hint
 
 
+def test_a_sweep_narrowed_to_some_seeds_keeps_the_files_order_and_entries():
+    """`shapebench sweep --seeds 2,0`: those seeds of the file, in the file's order, every entry
+    kept; none keep the sweep; a seed the file lacks is one clear error."""
+    from shapebench.api.errors import ConfigError
+    from shapebench.sweeps.spec import only_seeds
+
+    spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/standard.yaml")
+    assert spec.seeds == [0, 1, 2]
+    part = only_seeds(spec, [2, 0, 2])
+    assert part.seeds == [0, 2] and part.methods == spec.methods
+    assert only_seeds(spec, []) is spec
+    with pytest.raises(ConfigError, match="no seed 3") as err:
+        only_seeds(spec, [3])
+    assert err.value.hint == "its seeds: 0, 1, 2"
+
+
 def test_the_data_scaling_cross_at_4x_is_the_standard_profiles_seed_0(tmp_path):
     """A training the data-scaling sweep makes at 2,200 shapes and 4x the steps is the one the
     standard profile's tables need for seed 0: the same key, trained once."""

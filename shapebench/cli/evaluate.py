@@ -209,6 +209,14 @@ def run(
     "with the same cells and keys as the whole sweep: e.g. -m msc,msc-noopt.",
 )
 @click.option(
+    "--seeds",
+    "seed_list",
+    default="",
+    metavar="LIST",
+    help="Run only these of the sweep file's seeds (comma-separated), with the same cells "
+    "and keys as the whole sweep: e.g. --seeds 0 for a first look at a three-seed sweep.",
+)
+@click.option(
     "-D",
     "dataset_opts",
     multiple=True,
@@ -254,6 +262,7 @@ def sweep(
     retrain,
     quiet,
     methods,
+    seed_list,
     dataset_opts,
     launcher,
     jobs,
@@ -307,15 +316,17 @@ def sweep(
       shapebench sweep configs/sweeps/default.yaml
       shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
       shapebench sweep configs/sweeps/default.yaml -D test_per_category=4   # fewer objects
+      shapebench sweep configs/sweeps/default.yaml --seeds 0                # one seed of three
       shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
       shapebench sweep configs/sweeps/default.yaml --status
       shapebench sweep configs/sweeps/data-scaling.yaml -m msc,msc-noopt   # MSC's part
     """
     from shapebench.cli.printing import print_summary
-    from shapebench.sweeps.spec import load_sweep, only_methods, with_dataset_options
+    from shapebench.sweeps.spec import load_sweep, only_methods, only_seeds, with_dataset_options
 
     dataset_options = _parse(dataset_opts, "-D")
-    spec = only_methods(load_sweep(Path(sweep_file)), methods)
+    seeds = tuple(_int_list(seed_list, "--seeds"))
+    spec = only_seeds(only_methods(load_sweep(Path(sweep_file)), methods), seeds)
     spec = with_dataset_options(spec, dataset_options)
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
     if frame is not None or context_normals is not None:
@@ -346,6 +357,7 @@ def sweep(
         frame=frame,
         context_normals=context_normals,
         methods=tuple(methods),
+        seeds=seeds,
         dataset_options=dataset_options,
     )
     if status:

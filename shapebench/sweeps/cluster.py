@@ -148,6 +148,8 @@ class JobContext:
     #: ``shapebench sweep -m``: the method entries the submitting process kept (cells are
     #: addressed by their index among them)
     methods: tuple[str, ...] = ()
+    #: ``shapebench sweep --seeds``: the run seeds the submitting process kept.
+    seeds: tuple[int, ...] = ()
     #: ``shapebench sweep -D``: dataset options over every dataset entry's.
     dataset_options: dict[str, Any] = field(default_factory=dict)
 
@@ -161,9 +163,14 @@ class JobContext:
 
     def spec(self) -> Any:
         from shapebench.api.protocol import Protocol
-        from shapebench.sweeps.spec import load_sweep, only_methods, with_dataset_options
+        from shapebench.sweeps.spec import (
+            load_sweep,
+            only_methods,
+            only_seeds,
+            with_dataset_options,
+        )
 
-        spec = only_methods(load_sweep(Path(self.sweep_file)), self.methods)
+        spec = only_seeds(only_methods(load_sweep(Path(self.sweep_file)), self.methods), self.seeds)
         spec = with_dataset_options(spec, self.dataset_options)
         if self.frame is not None or self.context_normals is not None:
             spec = replace(

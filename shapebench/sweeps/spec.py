@@ -261,6 +261,23 @@ def only_methods(spec: SweepSpec, names: Iterable[str]) -> SweepSpec:
     return replace(spec, methods=[e for e in entries if e.name in wanted])
 
 
+def only_seeds(spec: SweepSpec, seeds: Iterable[int]) -> SweepSpec:
+    """``spec`` keeping only the run seeds in ``seeds`` (``shapebench sweep --seeds``); none keep
+    every seed. Like ``only_methods``, what is kept runs exactly as in the whole sweep (the same
+    cells and keys), so a three-seed sweep can be run one seed at a time, or its first seed
+    alone for a quick look, and its tables built from whatever is finished."""
+    wanted = list(dict.fromkeys(seeds))
+    if not wanted:
+        return spec
+    unknown = [s for s in wanted if s not in spec.seeds]
+    if unknown:
+        raise ConfigError(
+            f"sweep {spec.name!r} has no seed {', '.join(map(str, unknown))}",
+            f"its seeds: {', '.join(map(str, spec.seeds))}",
+        )
+    return replace(spec, seeds=[s for s in spec.seeds if s in wanted])
+
+
 def with_dataset_options(spec: SweepSpec, options: dict[str, Any]) -> SweepSpec:
     """``spec`` with ``options`` (``shapebench sweep -D key=value``) given to every dataset entry,
     over the entry's own: the command line wins, as for ``shapebench run``. A smaller benchmark

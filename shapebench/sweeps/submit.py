@@ -63,6 +63,8 @@ class SweepLaunch:
     context_normals: bool | None = None
     #: ``-m``: the method entries kept (``spec`` is already narrowed; jobs narrow it again).
     methods: tuple[str, ...] = ()
+    #: ``--seeds``: the run seeds kept (``spec`` is already narrowed; jobs narrow it again).
+    seeds: tuple[int, ...] = ()
     #: ``-D``: dataset options over every dataset entry's (``spec`` has them; jobs add them again).
     dataset_options: dict[str, Any] = field(default_factory=dict)
 
@@ -170,6 +172,7 @@ def cluster_sweep(launch: SweepLaunch) -> None:
         per_job_store=per_job,
         threads=threads,
         methods=launch.methods,
+        seeds=launch.seeds,
         dataset_options=launch.dataset_options,
     )
     folder = settings.artifact_root.parent / "logs" / "submitit" / spec.name
