@@ -180,18 +180,19 @@ def test_the_default_sweep_trains_nothing_from_a_fresh_clone(tmp_path):
     registry = get_registry()
     dataset = resolve_dataset(registry, "synthetic", settings, None, {})
     assert spec.seeds == [0, 1, 2]  # the committed tables are over three training seeds
-    trainable = set()
+    resolved = [
+        (entry.name, resolve_method(registry, entry.name, settings, entry.options))
+        for entry in sweep_methods(spec)
+    ]
+    trainable = {name for name, method in resolved if method.cls.trains}
     for seed in spec.seeds:
         trainer = profile_trainer(settings, seed)
-        for entry in sweep_methods(spec):
-            method = apply_trainer(
-                resolve_method(registry, entry.name, settings, entry.options), trainer
-            )
-            if method.cls.trains:
-                trainable.add(entry.name)
+        for name, resolved_method in resolved:
+            if name in trainable:
+                method = apply_trainer(resolved_method, trainer)
                 key = checkpoint_key(method, dataset, trainer)
                 found = find_reference(method, key)
-                assert found is not None, f"{entry.name}, seed {seed}: no reference for {key}"
+                assert found is not None, f"{name}, seed {seed}: no reference for {key}"
     assert {"igr", "deepsdf", "msc", "occnet", "pcn"} <= trainable
 
 

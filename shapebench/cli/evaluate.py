@@ -322,12 +322,11 @@ def sweep(
       shapebench sweep configs/sweeps/data-scaling.yaml -m msc,msc-noopt   # MSC's part
     """
     from shapebench.cli.printing import print_summary
-    from shapebench.sweeps.spec import load_sweep, only_methods, only_seeds, with_dataset_options
+    from shapebench.sweeps.spec import load_sweep, narrow_sweep
 
     dataset_options = _parse(dataset_opts, "-D")
     seeds = tuple(_int_list(seed_list, "--seeds"))
-    spec = only_seeds(only_methods(load_sweep(Path(sweep_file)), methods), seeds)
-    spec = with_dataset_options(spec, dataset_options)
+    spec = narrow_sweep(load_sweep(Path(sweep_file)), methods, seeds, dataset_options)
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
     if frame is not None or context_normals is not None:
         from dataclasses import replace

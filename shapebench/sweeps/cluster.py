@@ -163,15 +163,11 @@ class JobContext:
 
     def spec(self) -> Any:
         from shapebench.api.protocol import Protocol
-        from shapebench.sweeps.spec import (
-            load_sweep,
-            only_methods,
-            only_seeds,
-            with_dataset_options,
-        )
+        from shapebench.sweeps.spec import load_sweep, narrow_sweep
 
-        spec = only_seeds(only_methods(load_sweep(Path(self.sweep_file)), self.methods), self.seeds)
-        spec = with_dataset_options(spec, self.dataset_options)
+        spec = narrow_sweep(
+            load_sweep(Path(self.sweep_file)), self.methods, self.seeds, self.dataset_options
+        )
         if self.frame is not None or self.context_normals is not None:
             spec = replace(
                 spec,

@@ -266,16 +266,29 @@ def only_seeds(spec: SweepSpec, seeds: Iterable[int]) -> SweepSpec:
     every seed. Like ``only_methods``, what is kept runs exactly as in the whole sweep (the same
     cells and keys), so a three-seed sweep can be run one seed at a time, or its first seed
     alone for a quick look, and its tables built from whatever is finished."""
-    wanted = list(dict.fromkeys(seeds))
+    wanted = set(seeds)
     if not wanted:
         return spec
-    unknown = [s for s in wanted if s not in spec.seeds]
+    unknown = sorted(wanted - set(spec.seeds))
     if unknown:
         raise ConfigError(
             f"sweep {spec.name!r} has no seed {', '.join(map(str, unknown))}",
             f"its seeds: {', '.join(map(str, spec.seeds))}",
         )
     return replace(spec, seeds=[s for s in spec.seeds if s in wanted])
+
+
+def narrow_sweep(
+    spec: SweepSpec,
+    methods: Iterable[str] = (),
+    seeds: Iterable[int] = (),
+    dataset_options: dict[str, Any] | None = None,
+) -> SweepSpec:
+    """``spec`` as ``shapebench sweep -m ... --seeds ... -D ...`` narrows it. The submitting
+    process and each of its cluster jobs call this one function, so that a job's cell indices
+    address the same cells as they did where they were planned."""
+    spec = only_seeds(only_methods(spec, methods), seeds)
+    return with_dataset_options(spec, dataset_options or {})
 
 
 def with_dataset_options(spec: SweepSpec, options: dict[str, Any]) -> SweepSpec:
