@@ -3,8 +3,10 @@
 An ordering claim ("IGR beats Gauss densification at 50 points") is only made with its paired
 test: for each row and context size this prints the mean and median, how many objects the row
 wins against the reference, the two-sided Wilcoxon signed-rank p-value over the shared
-(object, seed) pairs; then each row at its smallest against its largest context size, paired the
-same way (objects lower at the largest, p, the ratios of means and of medians).
+(object, seed) pairs and the shift it tests (the Hodges-Lehmann estimate of row - reference:
+negative where the row is lower for the typical pair, so it says which way a small p points when
+the wins and the means disagree); then each row at its smallest against its largest context
+size, paired the same way (objects lower at the largest, p, the ratios of means and of medians).
 
     .venv/bin/python benchmarks/paired_vs_reference.py -d synthetic --split trained \
         --reference gauss [--workspace shapebench-runs] [--before OTHER_WORKSPACE] [--by-seed]
@@ -24,7 +26,7 @@ import argparse
 import numpy as np
 
 from shapebench.boards.leaderboard import build_board
-from shapebench.boards.stats import paired_p
+from shapebench.boards.stats import paired_p, paired_shift
 from shapebench.config import make_settings
 from shapebench.store.tracking import Tracker
 
@@ -42,7 +44,7 @@ def compare(board, reference: str) -> list[str]:
     lines = [
         f"{board.dataset}/{board.split}, {board.metric} x{board.scale:g}, against "
         f"{reference} (wins: objects where the row is lower)",
-        f"{'row':<28} {'k':>5} {'mean':>8} {'median':>8} {'wins':>7} {'p':>8}",
+        f"{'row':<28} {'k':>5} {'mean':>8} {'median':>8} {'wins':>7} {'p':>8} {'shift':>8}",
     ]
     for row in board.rows:
         for k in board.contexts:
@@ -54,10 +56,12 @@ def compare(board, reference: str) -> list[str]:
             a = pairs["scored"].to_numpy() * board.scale
             b = pairs["scored_ref"].to_numpy() * board.scale
             wins = f"{int((a < b).sum())}/{len(a)}"
-            p = "-" if row.variant == ref else f"{paired_p(a, b):.2g}"
+            p, shift = "-", "-"
+            if row.variant != ref:
+                p, shift = f"{paired_p(a, b):.2g}", f"{paired_shift(a, b):+.2f}"
             lines.append(
                 f"{labels[row.variant]:<28} {k:>5} {a.mean():>8.2f} "
-                f"{np.median(a):>8.2f} {wins:>7} {p:>8}"
+                f"{np.median(a):>8.2f} {wins:>7} {p:>8} {shift:>8}"
             )
     return lines + more_points(board)
 

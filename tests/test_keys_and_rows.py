@@ -584,6 +584,20 @@ def test_the_failure_rule_on_a_known_table():
     assert board_stats.holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
 
 
+def test_the_paired_shift_points_the_way_the_typical_pair_does():
+    from shapebench.boards import stats as board_stats
+
+    # Differences 1, 1, 1, -30: `a` is higher on three pairs of four but far lower on one, so its
+    # mean is lower; the shift (the median of the ten Walsh averages: six 1s, three -14.5s and
+    # -30) is 1: the typical pair has `a` higher, as the count of pairs says.
+    a, b = np.array([2.0, 3.0, 4.0, 0.0]), np.array([1.0, 2.0, 3.0, 30.0])
+    assert a.mean() < b.mean()
+    assert board_stats.paired_shift(a, b) == pytest.approx(1.0)
+    assert board_stats.paired_shift(b, a) == pytest.approx(-1.0)
+    assert board_stats.paired_shift(a, a) == 0.0
+    assert np.isnan(board_stats.paired_shift(a[:0], b[:0]))
+
+
 def test_the_category_mean_weighs_every_category_the_same():
     from shapebench.boards import stats as board_stats
 

@@ -55,9 +55,9 @@ def test_shipped_references_load_and_hold_their_keys():
 
 
 #: The trainable methods whose default-profile (standard) training on the synthetic benchmark
-#: ships: every trainable method of configs/sweeps/default.yaml, and ConvONet. MSC-hier and
-#: PoinTr ship at quick only, so far (the test below covers every profile's references).
-SHIPPED_METHODS = ("igr", "deepsdf", "msc", "msc-noopt", "occnet", "pcn", "convonet")
+#: ships: every trainable method of configs/sweeps/default.yaml. MSC-hier ships at quick only,
+#: so far (the test below covers every profile's references).
+SHIPPED_METHODS = ("igr", "deepsdf", "msc", "msc-noopt", "occnet", "pcn", "convonet", "pointr")
 
 
 @pytest.mark.parametrize("name", SHIPPED_METHODS)
