@@ -29,6 +29,40 @@ def test_worker_command_line_replaces_the_launcher_options():
     ]
 
 
+GAUSS_SWEEP = """
+name: threads
+methods: [gauss]
+datasets:
+  - name: synthetic
+    options: {test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
+              gt_points: 2000}
+splits: [trained]
+contexts: [50]
+seeds: [0]
+"""
+
+
+def test_threads_sets_the_torch_threads_of_workers_and_of_the_inline_sweep(shapebench, tmp_path):
+    """``--threads 1`` with one local worker (which would get every core) and inline: the cell
+    runs record the thread count they ran with; 0 is refused in one line."""
+    sb = shapebench
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text(GAUSS_SWEEP)
+    res = sb("sweep", str(sweep), "-q", "--launcher", "local", "-j", "1", "--threads", "1")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "1 workers, 1 torch threads each" in res.stdout
+    [run] = sb.cell_runs("synthetic-trained")
+    assert run.data.tags["host.torch_threads"] == "1"
+    res = sb("sweep", str(sweep), "-q", "--force", "--threads", "1")
+    assert res.returncode == 0, res.stderr[-3000:]
+    threads = [r.data.tags["host.torch_threads"] for r in sb.cell_runs("synthetic-trained")]
+    assert threads == ["1", "1"]
+    res = sb("sweep", str(sweep), "--threads", "0")
+    assert res.returncode != 0
+    assert "--threads must be at least 1, got 0" in res.stderr
+    assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) <= 2
+
+
 def test_workers_visit_the_methods_in_orders_that_meet_once():
     """Two workers (the default -j 2) go through the methods from opposite ends, so neither
     trails the other through every method waiting for its cells; more workers start apart."""

@@ -241,6 +241,16 @@ def run(
     help="Worker processes of --launcher local (jobs at once for submitit-local).",
 )
 @click.option(
+    "--threads",
+    type=int,
+    default=None,
+    metavar="N",
+    help="Torch threads of each worker (local), job (submitit-local, slurm) or of this process "
+    "(inline) [default: the cores shared between -j workers; slurm: cpus_per_task]. Lower it to "
+    "evaluate beside a training without oversubscribing the cores; scores agree across thread "
+    "counts to the cell key's tolerance.",
+)
+@click.option(
     "--slurm",
     "slurm_opts",
     multiple=True,
@@ -266,6 +276,7 @@ def sweep(
     dataset_opts,
     launcher,
     jobs,
+    threads,
     slurm_opts,
     status,
     wait,
@@ -315,6 +326,7 @@ def sweep(
     Examples:
       shapebench sweep configs/sweeps/default.yaml
       shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
+      shapebench sweep configs/sweeps/default.yaml --threads 1     # beside a training
       shapebench sweep configs/sweeps/default.yaml -D test_per_category=4   # fewer objects
       shapebench sweep configs/sweeps/default.yaml --seeds 0                # one seed of three
       shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
@@ -346,6 +358,7 @@ def sweep(
         settings=settings,
         launcher=launcher or spec.launcher.get("name") or "inline",
         jobs=jobs,
+        threads=threads,
         trainer={k: v for k, v in trainer.items() if v is not None},
         overrides=_parse(slurm_opts, "--slurm"),
         force=force,

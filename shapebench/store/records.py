@@ -86,6 +86,8 @@ HOST_CPUS_TAG = "host.cpus"
 HOST_CPU_TAG = "host.cpu"
 HOST_MEMORY_TAG = "host.memory_gb"
 HOST_GPUS_TAG = "host.gpus"
+#: Torch's intra-op threads when the run started (``sweep --threads``, a worker's share).
+HOST_TORCH_THREADS_TAG = "host.torch_threads"
 #: The tag of a cell naming the training run its checkpoint came from.
 TRAINING_RUN_TAG = "training_run_id"
 METRIC_ERRORS_TAG = "shapebench.metric_errors"

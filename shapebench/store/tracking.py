@@ -370,9 +370,22 @@ def run_url(base: str, exp_id: str, run_id: str) -> str:
     return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs/{run_id}"
 
 
-@functools.lru_cache(maxsize=1)
 def run_context_tags() -> dict[str, str]:
-    """MLflow's standard tags and this process's provenance, on every run shapebench starts."""
+    """MLflow's standard tags and this process's provenance, on every run shapebench starts:
+    the torch thread count too once torch is loaded (it is set per worker and decides whether
+    two computations of a cell agree bitwise or to the key's tolerance)."""
+    import sys
+
+    tags = dict(_process_tags())
+    torch = sys.modules.get("torch")
+    if torch is not None and hasattr(torch, "get_num_threads"):
+        tags[rec.HOST_TORCH_THREADS_TAG] = str(torch.get_num_threads())
+    return tags
+
+
+@functools.lru_cache(maxsize=1)
+def _process_tags() -> dict[str, str]:
+    """The tags of :func:`run_context_tags` that cannot change while the process runs."""
     import getpass
     import platform
     import sys

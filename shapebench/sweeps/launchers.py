@@ -8,7 +8,8 @@ wait for it. Workers visit the sweep's methods in different orders
 (:func:`shapebench.sweeps.spec.worker_order`: the second one backwards), so they start on
 different methods instead of queueing behind one training, and rarely wait for each other's
 cells. Torch gets ``cores // N`` threads
-per worker (``OMP_NUM_THREADS``), so N workers do not oversubscribe the machine.
+per worker (``OMP_NUM_THREADS``), so N workers do not oversubscribe the machine; ``sweep
+--threads`` sets another number (fewer, to evaluate beside a training).
 
 Nothing here is a scheduler: killing a worker loses at most its cell in progress (its lock is
 released with it), and rerunning the sweep computes what is missing.
@@ -45,17 +46,26 @@ def worker_argv(argv: list[str], index: int) -> list[str]:
     return out + ["--launcher", "inline", "--worker", str(index)]
 
 
-def threads_per_worker(jobs: int) -> int:
-    return max(1, (os.cpu_count() or 1) // max(jobs, 1))
+def threads_per_worker(jobs: int, threads: int | None = None) -> int:
+    """Torch threads for each of ``jobs`` workers: ``threads`` (``sweep --threads``) where given,
+    else the machine's cores shared between them."""
+    return threads or max(1, (os.cpu_count() or 1) // max(jobs, 1))
 
 
-def run_local(argv: list[str], jobs: int, log_dir: Path, echo: Callable[[str], None]) -> int:
-    """Run ``jobs`` workers of the sweep whose command line is ``argv``; the number of workers
-    that failed. Ctrl-C stops them (each saves its training checkpoint, as on Ctrl-C)."""
+def run_local(
+    argv: list[str],
+    jobs: int,
+    log_dir: Path,
+    echo: Callable[[str], None],
+    threads_each: int | None = None,
+) -> int:
+    """Run ``jobs`` workers of the sweep whose command line is ``argv``, with ``threads_each``
+    torch threads each (None: :func:`threads_per_worker`); the number of workers that failed.
+    Ctrl-C stops them (each saves its training checkpoint, as on Ctrl-C)."""
     log_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     env = dict(os.environ)
-    threads = str(threads_per_worker(jobs))
+    threads = str(threads_per_worker(jobs, threads_each))
     env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, PYTHONSAFEPATH="1")
     procs: list[tuple[subprocess.Popen, Path]] = []
     for i in range(jobs):

@@ -47,6 +47,10 @@ class SweepLaunch:
     launcher: str = "inline"
     #: Worker processes (local), jobs at once (submitit-local).
     jobs: int = 1
+    #: Torch threads of each worker, job or (inline) this process; None: the cores shared
+    #: between the workers (local, submitit-local), ``cpus_per_task`` (slurm), torch's default
+    #: (inline).
+    threads: int | None = None
     #: Trainer options given explicitly (``--devices 1``...), the rest from the profile.
     trainer: dict[str, Any] = field(default_factory=dict)
     #: Keys of the sweep file's launcher block overridden (``--slurm KEY=VALUE``).
@@ -77,6 +81,11 @@ def start_sweep(launch: SweepLaunch, worker_argv: list[str]) -> bool:
     here), or run the local worker processes to the end (``worker_argv``: the ``sweep``
     arguments they are started with). True when the caller computes the remaining cells inline,
     with :func:`run_inline` (for the inline launcher: every cell)."""
+    if launch.threads is not None and launch.threads < 1:
+        raise ShapebenchError(
+            f"--threads must be at least 1, got {launch.threads}",
+            "leave it out to share the cores between the workers",
+        )
     if launch.launcher in CLUSTER_LAUNCHERS:
         if launch.force or launch.retrain:
             raise ShapebenchError(
@@ -96,7 +105,7 @@ def start_sweep(launch: SweepLaunch, worker_argv: list[str]) -> bool:
         if launch.jobs < 1:
             raise ShapebenchError(f"--jobs must be at least 1, got {launch.jobs}")
         log_dir = launch.settings.artifact_root.parent / "logs"
-        if run_local(worker_argv, launch.jobs, log_dir, click.echo):
+        if run_local(worker_argv, launch.jobs, log_dir, click.echo, launch.threads):
             click.secho("some workers failed; computing what they left here", fg="yellow")
     return True
 
@@ -109,6 +118,8 @@ def run_inline(
     a method or dataset that cannot run (the rest of the sweep goes on)."""
     from shapebench.sweeps.spec import run_sweep
 
+    if launch.threads is not None:
+        use_threads(launch.threads)
     yield from run_sweep(
         launch.spec,
         launch.settings,
@@ -119,6 +130,17 @@ def run_inline(
         offset=launch.worker,
         retrain=launch.retrain,
     )
+
+
+def use_threads(threads: int) -> None:
+    """Run this process's torch (and the OpenMP and MKL libraries loaded after this) on
+    ``threads`` threads: what a local worker gets from its environment."""
+    import os
+
+    import torch
+
+    os.environ.update(OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
+    torch.set_num_threads(threads)
 
 
 def show_status(launch: SweepLaunch) -> None:
@@ -159,7 +181,9 @@ def cluster_sweep(launch: SweepLaunch) -> None:
     local = launcher == "submitit-local"
     if local and jobs < 1:
         raise ShapebenchError(f"--jobs must be at least 1, got {jobs}")
-    threads = max(1, (os.cpu_count() or 1) // jobs) if local else cfg.cpus_per_task
+    threads = launch.threads or (
+        max(1, (os.cpu_count() or 1) // jobs) if local else cfg.cpus_per_task
+    )
     ctx = JobContext(
         sweep_file=str(sweep_file.absolute()),
         profile=settings.profile_name,
