@@ -598,6 +598,26 @@ def test_the_paired_shift_points_the_way_the_typical_pair_does():
     assert np.isnan(board_stats.paired_shift(a[:0], b[:0]))
 
 
+def test_the_paired_shift_of_a_large_board_selects_the_same_walsh_averages():
+    """Above two million Walsh averages the shift is selected without forming them; the
+    selection gives every rank the full sort gives, ties and negative differences included."""
+    from shapebench.boards import stats as board_stats
+
+    rng = np.random.default_rng(0)
+    for diff in (rng.normal(size=40), np.round(rng.normal(size=41), 1), np.zeros(5)):
+        ordered = np.sort(diff)
+        i, j = np.triu_indices(len(diff))
+        walsh = np.sort((diff[i] + diff[j]) / 2)
+        picked = [board_stats._walsh_order_statistic(ordered, k) for k in range(1, len(walsh) + 1)]
+        assert np.allclose(picked, walsh, rtol=0, atol=1e-12)
+    # 2,500 pairs (3.1 million averages) take the selecting path; half of them by chance higher.
+    a, b = rng.normal(size=2500) + 0.25, rng.normal(size=2500)
+    i, j = np.triu_indices(len(a))
+    assert len(i) > board_stats._WALSH_IN_MEMORY
+    expected = np.median((a - b)[i] + (a - b)[j]) / 2
+    assert board_stats.paired_shift(a, b) == pytest.approx(expected, abs=1e-12)
+
+
 def test_the_category_mean_weighs_every_category_the_same():
     from shapebench.boards import stats as board_stats
 
