@@ -55,9 +55,20 @@ def test_shipped_references_load_and_hold_their_keys():
 
 
 #: The trainable methods whose default-profile (standard) training on the synthetic benchmark
-#: ships: every trainable method of configs/sweeps/default.yaml. MSC-hier ships at quick only,
-#: so far (the test below covers every profile's references).
-SHIPPED_METHODS = ("igr", "deepsdf", "msc", "msc-noopt", "occnet", "pcn", "convonet", "pointr")
+#: ships: every trainable method of configs/sweeps/default.yaml (the test below covers every
+#: profile's references).
+SHIPPED_METHODS = (
+    "igr",
+    "deepsdf",
+    "msc",
+    "msc-noopt",
+    "occnet",
+    "pcn",
+    "convonet",
+    "msc-hier",
+    "msc-hier-noopt",
+    "pointr",
+)
 
 
 @pytest.mark.parametrize("name", SHIPPED_METHODS)
