@@ -189,9 +189,9 @@ class JobContext:
 
     def start(self) -> None:
         if self.threads:
-            import torch
+            from shapebench.sweeps.launchers import use_threads
 
-            torch.set_num_threads(self.threads)
+            use_threads(self.threads)
 
 
 def job_id() -> str:

@@ -52,6 +52,21 @@ def threads_per_worker(jobs: int, threads: int | None = None) -> int:
     return threads or max(1, (os.cpu_count() or 1) // max(jobs, 1))
 
 
+def thread_env(threads: int) -> dict[str, str]:
+    """The environment that gives torch, OpenMP and MKL ``threads`` threads in a process that
+    loads them after it is set."""
+    return {"OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+
+
+def use_threads(threads: int) -> None:
+    """Run this process's torch on ``threads`` threads (and the OpenMP and MKL libraries it loads
+    from now on): what a local worker gets from its environment."""
+    import torch
+
+    os.environ.update(thread_env(threads))
+    torch.set_num_threads(threads)
+
+
 def run_local(
     argv: list[str],
     jobs: int,
@@ -65,8 +80,8 @@ def run_local(
     log_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     env = dict(os.environ)
-    threads = str(threads_per_worker(jobs, threads_each))
-    env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads, PYTHONSAFEPATH="1")
+    threads = threads_per_worker(jobs, threads_each)
+    env.update(thread_env(threads), PYTHONSAFEPATH="1")
     procs: list[tuple[subprocess.Popen, Path]] = []
     for i in range(jobs):
         log = log_dir / f"sweep-{stamp}-worker{i}.log"

@@ -28,6 +28,7 @@ from shapebench.sweeps.cluster import (
     wait_for,
     write_manifest,
 )
+from shapebench.sweeps.launchers import run_local, threads_per_worker, use_threads
 from shapebench.sweeps.plan import plan_sweep
 from shapebench.sweeps.spec import SweepSpec, sweep_methods
 from shapebench.train.training import trainer_options
@@ -95,8 +96,6 @@ def start_sweep(launch: SweepLaunch, worker_argv: list[str]) -> bool:
         cluster_sweep(launch)
         return False
     if launch.launcher == "local":
-        from shapebench.sweeps.launchers import run_local
-
         if launch.force or launch.retrain:
             raise ShapebenchError(
                 "--force and --retrain cannot be split between workers",
@@ -132,17 +131,6 @@ def run_inline(
     )
 
 
-def use_threads(threads: int) -> None:
-    """Run this process's torch (and the OpenMP and MKL libraries loaded after this) on
-    ``threads`` threads: what a local worker gets from its environment."""
-    import os
-
-    import torch
-
-    os.environ.update(OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
-    torch.set_num_threads(threads)
-
-
 def show_status(launch: SweepLaunch) -> None:
     """Print each cell's state; per-job stores are merged first, so finished means merged."""
     spec, settings = launch.spec, launch.settings
@@ -157,8 +145,6 @@ def show_status(launch: SweepLaunch) -> None:
 def cluster_sweep(launch: SweepLaunch) -> None:
     """Submit the sweep's missing trainings and cells; submitit-local (or ``--wait``) waits for
     them, merges per-job stores and prints the status."""
-    import os
-
     spec, settings, launcher, jobs = launch.spec, launch.settings, launch.launcher, launch.jobs
     sweep_file, given = launch.sweep_file, launch.trainer
 
@@ -181,8 +167,8 @@ def cluster_sweep(launch: SweepLaunch) -> None:
     local = launcher == "submitit-local"
     if local and jobs < 1:
         raise ShapebenchError(f"--jobs must be at least 1, got {jobs}")
-    threads = launch.threads or (
-        max(1, (os.cpu_count() or 1) // jobs) if local else cfg.cpus_per_task
+    threads = (
+        threads_per_worker(jobs, launch.threads) if local else (launch.threads or cfg.cpus_per_task)
     )
     ctx = JobContext(
         sweep_file=str(sweep_file.absolute()),
