@@ -10,7 +10,7 @@ one's best time and its ratio to the baseline measured in the same
 run (two threads, subnormals as they come: the default of a ``shapebench sweep`` on 2 cores):
 
 * threads 2 and 1, each as torch computes by default and inside
-  :func:`shapebench.evaluation.runner.subnormals_flushed` (what runs do since 2026-11-29);
+  :func:`shapebench.evaluation.completion.subnormals_flushed` (what runs do since 2026-11-29);
 
 and whether every setting's completions are bitwise those of the baseline's thread count
 without the flush (the flush must change no point; the thread count may, and is reported
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict[tuple[int, bool], float]:
     import torch
 
     from shapebench.api.contexts import ContextStore
-    from shapebench.evaluation.runner import subnormals_flushed
+    from shapebench.evaluation.completion import subnormals_flushed
 
     resolved, dataset = resolve(args)
     method = resolved.cls(resolved.options)

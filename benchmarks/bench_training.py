@@ -47,7 +47,7 @@ def bare_seconds_per_step(method, data, n_shapes: int, steps: int, warmup: int, 
     """The plain loop's wall time per optimiser step, after ``warmup`` untimed steps."""
     import torch
 
-    from shapebench.train.lightning_fit import seed_training
+    from shapebench.train.seeding import seed_training
 
     seed_training(0)
     module = method.build_module(n_shapes).to(device)
@@ -77,7 +77,8 @@ def bare_seconds_per_step(method, data, n_shapes: int, steps: int, warmup: int, 
 def lightning_seconds(method, dataset, data, epochs: int, accelerator: str) -> tuple[float, int]:
     """Wall time and optimiser steps of one ``fit_lightning`` of ``epochs`` epochs."""
     from shapebench.api.method import TrainerOptions, TrainingContext
-    from shapebench.train.lightning_fit import fit_lightning, seed_training
+    from shapebench.train.lightning_fit import fit_lightning
+    from shapebench.train.seeding import seed_training
 
     with tempfile.TemporaryDirectory() as tmp:
         trainer = TrainerOptions(accelerator=accelerator, devices=1, seed=0, max_epochs=epochs)

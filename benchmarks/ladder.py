@@ -182,10 +182,11 @@ def gauss_scores(objects: list[ObjectData], contexts: list[Context]) -> list[flo
 
 def untrained(method, n_shapes: int, seed: int):
     """``method`` holding a freshly initialised module, as ``load_checkpoint`` would leave it."""
-    from shapebench.train.lightning_fit import device, seed_training
+    from shapebench.train.lightning_method import completion_device
+    from shapebench.train.seeding import seed_training
 
     seed_training(seed)
-    method.device = device()
+    method.device = completion_device()
     method.module = method.build_module(n_shapes).to(method.device).eval()
     for p in method.module.parameters():
         p.requires_grad_(False)

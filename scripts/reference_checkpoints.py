@@ -144,7 +144,8 @@ def main(argv: list[str] | None = None) -> None:
     from shapebench.store.provenance import git_commit
     from shapebench.sweeps.spec import load_sweep, sweep_methods
     from shapebench.train.references import INFO_FILE, SHIPPED, export
-    from shapebench.train.training import checkpoint_dir, read_done, reference_training
+    from shapebench.train.ticket import checkpoint_dir
+    from shapebench.train.training import read_done, reference_training
 
     os.environ["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = "none"  # train, never install
     settings = make_settings(None, None, args.profile, args.workspace)

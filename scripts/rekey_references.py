@@ -4,7 +4,7 @@ and not what the training computes.
     .venv/bin/python scripts/rekey_references.py --from-commit C --why "..." [--dry-run]
 
 A checkpoint key covers the method's options, its code digest and the training data's identity
-(:func:`shapebench.train.training.checkpoint_key`). Some changes move a key without changing a
+(:func:`shapebench.train.ticket.checkpoint_key`). Some changes move a key without changing a
 single trained weight, and retraining for them would waste hours:
 
 * dataset options that no training object depends on left the training identity (the synthetic
@@ -49,7 +49,12 @@ def keys_now(requests: list[dict]) -> list[str]:
     from shapebench.config import make_settings
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
-    from shapebench.train.training import apply_trainer, checkpoint_key, profile_trainer
+    from shapebench.train.training import profile_trainer
+
+    try:
+        from shapebench.train.ticket import apply_trainer, checkpoint_key
+    except ImportError:  # a tree from before the training ticket: they were in train/training.py
+        from shapebench.train.training import apply_trainer, checkpoint_key
 
     registry = get_registry()
     keys = []

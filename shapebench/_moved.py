@@ -1,8 +1,9 @@
-"""Import paths of shapebench 0.1 that moved when the package was regrouped into rooms.
+"""Import paths of shapebench 0.1 that moved when the package was regrouped into rooms, and
+documented paths of the rooms that moved since.
 
 ``import shapebench.types`` (or ``from shapebench.testing import check_method``, or
-``pytest_plugins = ["shapebench.testing"]``) keeps working for one release: the old name is
-bound to the module at its new place, the very same module object, and a
+``pytest_plugins = ["shapebench.registry.testing"]``) keeps working for one release: the old name
+is bound to the module at its new place, the very same module object, and a
 :class:`DeprecationWarning` names the new path. Remove this table in 0.3.
 """
 
@@ -18,7 +19,9 @@ from types import ModuleType
 
 #: Old module -> the module that now holds its code (docs/architecture.md has the rooms). Two old
 #: modules are packages now: ``shapebench.registry`` hands on the names of its ``discovery``
-#: module with the same warning, ``shapebench.cli`` exports ``cli`` and ``main`` as before.
+#: module with the same warning, ``shapebench.cli`` exports ``cli`` and ``main`` as before. The
+#: plugin checks left ``registry/`` for a room of their own, split by concern: the old module
+#: ``check`` is the package ``shapebench.conformance``, which re-exports its public names.
 MOVED: dict[str, str] = {
     "shapebench.hookspecs": "shapebench.api.hookspecs",
     "shapebench.method": "shapebench.api.method",
@@ -32,8 +35,10 @@ MOVED: dict[str, str] = {
     "shapebench.resolve": "shapebench.registry.resolve",
     "shapebench.variant": "shapebench.registry.variant",
     "shapebench.code_digest": "shapebench.registry.code_digest",
-    "shapebench.check": "shapebench.registry.check",
-    "shapebench.testing": "shapebench.registry.testing",
+    "shapebench.check": "shapebench.conformance",
+    "shapebench.testing": "shapebench.conformance.testing",
+    "shapebench.registry.check": "shapebench.conformance",
+    "shapebench.registry.testing": "shapebench.conformance.testing",
     "shapebench.tracking": "shapebench.store.tracking",
     "shapebench.records": "shapebench.store.records",
     "shapebench.merge": "shapebench.store.merge",

@@ -1,6 +1,6 @@
-"""``shapebench check`` and :mod:`shapebench.registry.testing` (issue 12): the built-ins pass; a
-plugin that
-breaks a rule fails that check, with the reason, and the command exits with status 1."""
+"""``shapebench check`` and :mod:`shapebench.conformance.testing` (issue 12): the built-ins pass;
+a plugin that breaks a rule fails that check, with the reason, and the command exits with
+status 1."""
 
 from __future__ import annotations
 
@@ -29,8 +29,24 @@ from shapebench.api.types import (
     ObjectData,
     ObjectRef,
 )
-from shapebench.registry import check as checks
-from shapebench.registry.testing import PluginCheckFailed, check_dataset, check_method, check_metric
+from shapebench.conformance.framework import (
+    FAIL,
+    PASS,
+    SKIP,
+    CheckEnv,
+    CheckFailed,
+    CheckResult,
+    summary,
+)
+from shapebench.conformance.methods import completion_problem
+from shapebench.conformance.options import options_roundtrip
+from shapebench.conformance.runner import distribution_components
+from shapebench.conformance.testing import (
+    PluginCheckFailed,
+    check_dataset,
+    check_method,
+    check_metric,
+)
 
 # -- a plugin that breaks one rule per component, installed through a real entry point -----------
 
@@ -276,8 +292,7 @@ def test_a_plugin_that_fails_to_import_fails_its_check(shapebench, broken_site):
     )
 
 
-# -- shapebench.registry.testing, in this process
-# ------------------------------------------------------
+# -- shapebench.conformance.testing, in this process --------------------------------------------
 
 
 class _NaNMethod(Method):
@@ -335,7 +350,7 @@ class _LeakyDataset(Dataset):
 
 @pytest.fixture(scope="module")
 def env(tmp_path_factory):
-    with checks.CheckEnv(workdir=tmp_path_factory.mktemp("check")) as e:
+    with CheckEnv(workdir=tmp_path_factory.mktemp("check")) as e:
         yield e
 
 
@@ -360,12 +375,12 @@ def test_testing_helpers_pass_builtins_and_raise_on_bad_components(env):
 
 def test_completion_problems_name_the_rule():
     pts = np.zeros((100, 3), np.float32)
-    assert checks.completion_problem(Completion(pts), 2000) is None
-    assert "shape (100, 2)" in checks.completion_problem(Completion(pts[:, :2]), 2000)
-    assert "expected between 50 and 20000" in checks.completion_problem(Completion(pts[:10]), 2000)
-    assert "a point 173 from the origin" in checks.completion_problem(Completion(pts + 100), 2000)
-    assert "samples[0]" in checks.completion_problem(Completion(pts, samples=[pts * np.nan]), 2000)
-    assert "not a Completion" in checks.completion_problem(pts, 2000)
+    assert completion_problem(Completion(pts), 2000) is None
+    assert "shape (100, 2)" in completion_problem(Completion(pts[:, :2]), 2000)
+    assert "expected between 50 and 20000" in completion_problem(Completion(pts[:10]), 2000)
+    assert "a point 173 from the origin" in completion_problem(Completion(pts + 100), 2000)
+    assert "samples[0]" in completion_problem(Completion(pts, samples=[pts * np.nan]), 2000)
+    assert "not a Completion" in completion_problem(pts, 2000)
 
 
 def test_options_that_do_not_round_trip_fail():
@@ -374,51 +389,51 @@ def test_options_that_do_not_round_trip_fail():
         sizes: tuple[int, ...] = (1, 2)
         where: str = "x"
 
-    assert checks._options_roundtrip(Tupled, {"where": "y: z"}, "m").where == "y: z"
+    assert options_roundtrip(Tupled, {"where": "y: z"}, "m").where == "y: z"
 
     @dataclass(frozen=True)
     class BareTuple:  # `-O sizes=[1,2]` cannot build it: the check says so
         sizes: tuple = (1, 2)
 
     with pytest.raises(ConfigError, match="must be tuple, got \\[1, 2\\]"):
-        checks._options_roundtrip(BareTuple, {}, "m")
+        options_roundtrip(BareTuple, {}, "m")
 
     @dataclass(frozen=True)
     class Bad:
         where: Path = Path("/tmp")
 
-    with pytest.raises(checks.CheckFailed, match="where=PosixPath.*not a JSON value"):
-        checks._options_roundtrip(Bad, {}, "m")
+    with pytest.raises(CheckFailed, match="where=PosixPath.*not a JSON value"):
+        options_roundtrip(Bad, {}, "m")
 
 
 def test_unknown_distribution_lists_the_installed_ones():
     from shapebench.registry.discovery import get_registry
 
     with pytest.raises(UnknownNameError, match="available: .*shapebench"):
-        checks.distribution_components(get_registry(), "shapebench-nope")
-    kinds = [c.kind for c in checks.distribution_components(get_registry(), "shapebench")]
+        distribution_components(get_registry(), "shapebench-nope")
+    kinds = [c.kind for c in distribution_components(get_registry(), "shapebench")]
     assert kinds == sorted(kinds, key=("method", "dataset", "metric").index)
 
 
 def test_summary_reads_like_pytest():
     results = [
-        checks.CheckResult("a", checks.PASS),
-        checks.CheckResult("b", checks.FAIL),
-        checks.CheckResult("c", checks.SKIP),
-        checks.CheckResult("d", checks.PASS),
+        CheckResult("a", PASS),
+        CheckResult("b", FAIL),
+        CheckResult("c", SKIP),
+        CheckResult("d", PASS),
     ]
-    assert checks.summary(results, 1.25) == "2 passed, 1 failed, 1 skipped in 1.2s"
+    assert summary(results, 1.25) == "2 passed, 1 failed, 1 skipped in 1.2s"
 
 
 @pytest.mark.slow  # runs pytest on a plugin's test file in a subprocess
 def test_a_plugin_test_suite_uses_the_fixture_and_helpers(tmp_path):
-    (tmp_path / "conftest.py").write_text('pytest_plugins = ["shapebench.registry.testing"]\n')
+    (tmp_path / "conftest.py").write_text('pytest_plugins = ["shapebench.conformance.testing"]\n')
     (tmp_path / "test_plugin.py").write_text(
         textwrap.dedent("""
         import numpy as np
         import pytest
         from shapebench import Completion, Method
-        from shapebench.registry.testing import check_method
+        from shapebench.conformance.testing import check_method
 
         class Wobbly(Method):
             def complete(self, context, n_points):

@@ -67,6 +67,30 @@ def test_a_training_job_has_one_task_per_lightning_rank():
     assert _ranks({"devices": "0,1"}) == (2, 1)
 
 
+def test_a_pickled_job_names_its_callable_in_the_jobs_module(tmp_path):
+    """submitit pickles a job's callable by reference: a node imports it from
+    shapebench.sweeps.jobs, and a job pickled when the classes lived in shapebench.sweeps.cluster
+    (requeued after an upgrade) still finds them there."""
+    import io
+    import pickle
+
+    cloudpickle = pytest.importorskip("cloudpickle")  # what submitit pickles with
+    from shapebench.sweeps import jobs
+
+    ctx = jobs.JobContext("s.yaml", None, "", str(tmp_path), str(tmp_path), {})
+    for job in (
+        jobs.CellsJob(ctx, []),
+        jobs.TrainingJob(ctx, None),
+        jobs.PrepareJob(None, None, 0, 1, 1),
+    ):
+        data = cloudpickle.dumps(job)
+        assert b"shapebench.sweeps.jobs" in data and b"shapebench.sweeps.cluster" not in data
+        assert type(pickle.loads(data)) is type(job)
+    old = pickle.Unpickler(io.BytesIO(b""))
+    for name in ("JobContext", "CellsJob", "TrainingJob", "PrepareJob"):
+        assert old.find_class("shapebench.sweeps.cluster", name) is getattr(jobs, name)
+
+
 def test_sweep_file_launcher_block_and_manifest_tolerate_a_cut_line(tmp_path):
     sweep = tmp_path / "s.yaml"
     sweep.write_text("methods: [gauss]\ndatasets: [synthetic]\nlauncher: slurm\n")
@@ -159,7 +183,7 @@ def test_a_job_rebuilds_the_sweep_narrowed_as_it_was_submitted(tmp_path):
     the sweep file the same way, or it would run another method's cell."""
     from pathlib import Path
 
-    from shapebench.sweeps.cluster import JobContext
+    from shapebench.sweeps.jobs import JobContext
     from shapebench.sweeps.spec import only_methods, sweep_methods
 
     path = Path(__file__).parent.parent / "configs/sweeps/data-scaling.yaml"

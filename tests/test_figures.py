@@ -172,7 +172,7 @@ def test_save_writes_png_and_svg_and_refuses_a_blank_figure(tmp_path):
 
 
 def test_training_summary_counts_device_hours_and_prints_them(capsys):
-    from shapebench.train.lightning_fit import report_summary, training_summary
+    from shapebench.train.summary import report_summary, training_summary
 
     device = SimpleNamespace(type="cpu")
     trainer = SimpleNamespace(

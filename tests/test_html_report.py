@@ -220,7 +220,8 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     from shapebench.api.types import NOVEL, Completion
     from shapebench.boards.html_report import build_report
     from shapebench.config import make_settings
-    from shapebench.evaluation.runner import Runner, RunPlan
+    from shapebench.evaluation.plan import RunPlan
+    from shapebench.evaluation.runner import Runner
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_method, resolve_metrics
     from shapebench.registry.variant import make_variant

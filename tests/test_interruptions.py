@@ -17,7 +17,7 @@ import pytest
 import torch
 from conftest import TINY
 
-from shapebench.train.lightning_fit import checkpoint_epochs
+from shapebench.train.checkpoints import checkpoint_epochs
 
 pytestmark = pytest.mark.slow  # every test here starts the CLI or trains
 
@@ -194,8 +194,9 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
     from shapebench_msc.method import MSC
     from test_training_repro import TINY_MSC, _meshes, _Shapes
 
-    import shapebench.train.lightning_fit as lf
     from shapebench.api.method import TrainerOptions, TrainingContext
+    from shapebench.train.callbacks import TrainingInterrupted
+    from shapebench.train.seeding import EpochSeeds
 
     def fit(name: str) -> Path:
         trainer = TrainerOptions(accelerator="cpu", devices=1, seed=3)
@@ -203,7 +204,7 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
         return MSC(MSC.Options(**{**TINY_MSC, "epochs": 4})).fit(ctx)
 
     straight = torch.load(fit("straight"), map_location="cpu", weights_only=True)
-    seed_step = lf.EpochSeeds.on_train_batch_start
+    seed_step = EpochSeeds.on_train_batch_start
     sent = []
 
     def signal_once(self, trainer, module, data, batch_idx):
@@ -212,10 +213,10 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
             os.kill(os.getpid(), signal.SIGINT)
         return seed_step(self, trainer, module, data, batch_idx)
 
-    monkeypatch.setattr(lf.EpochSeeds, "on_train_batch_start", signal_once)
-    with pytest.raises(lf.TrainingInterrupted, match="stopped in epoch"):
+    monkeypatch.setattr(EpochSeeds, "on_train_batch_start", signal_once)
+    with pytest.raises(TrainingInterrupted, match="stopped in epoch"):
         fit("stopped")
-    monkeypatch.setattr(lf.EpochSeeds, "on_train_batch_start", seed_step)
+    monkeypatch.setattr(EpochSeeds, "on_train_batch_start", seed_step)
     saved = torch.load(tmp_path / "stopped" / "last.ckpt", map_location="cpu", weights_only=True)
     assert saved["global_step"] == sent[0] + 1  # the step in progress was finished, then saved
     resumed = torch.load(fit("stopped"), map_location="cpu", weights_only=True)

@@ -77,7 +77,7 @@ def test_trainer_settings_that_change_weights_change_the_key(tmp_path):
     from shapebench.api.method import TrainerOptions
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
-    from shapebench.train.training import apply_trainer, checkpoint_key
+    from shapebench.train.ticket import apply_trainer, checkpoint_key
 
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
     reg = get_registry()
@@ -115,7 +115,7 @@ def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):
     from shapebench.evaluation.orchestrate import EvalRequest, _variant
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
-    from shapebench.train.training import checkpoint_key, training_identity
+    from shapebench.train.ticket import checkpoint_key, training_ticket
 
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
     reg = get_registry()
@@ -126,7 +126,8 @@ def test_the_training_scale_is_in_the_key_and_the_label_of_the_row(tmp_path):
         opts = {} if scale is None else {"train_per_category": scale}
         data = resolve_dataset(reg, "synthetic", settings, None, opts)
         req = EvalRequest("msc", "synthetic", dataset_opts=opts)
-        variant = _variant(method, data, req, settings, trainer, training_identity(method, trainer))
+        ticket = training_ticket(method, data, trainer, settings)
+        variant = _variant(method, data, req, settings, ticket)
         rows[scale] = (checkpoint_key(method, data, trainer), variant, data.fingerprint())
     assert rows[None][0] == rows[6][0] != rows[20][0]
     assert rows[None][1] == rows[6][1] and rows[None][1].label == "msc"
@@ -142,7 +143,7 @@ def test_more_test_objects_keep_every_checkpoint_key(tmp_path):
     from shapebench.api.method import TrainerOptions
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
-    from shapebench.train.training import checkpoint_key
+    from shapebench.train.ticket import checkpoint_key
 
     settings = make_settings(f"sqlite:///{tmp_path}/m.db", tmp_path, "quick", tmp_path)
     reg = get_registry()
@@ -643,8 +644,10 @@ def test_the_category_mean_weighs_every_category_the_same():
 
 
 def test_the_paper_column_stands_only_beside_the_unit_diameter_card():
-    from shapebench.boards.leaderboard import Board, Row, render_markdown, tidy_csv
+    from shapebench.boards.board import Board, Row
+    from shapebench.boards.markdown import render_markdown
     from shapebench.boards.paper import paper_table
+    from shapebench.boards.tidy import tidy_csv
 
     raw = pd.DataFrame(
         [

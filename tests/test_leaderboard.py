@@ -173,7 +173,7 @@ def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():
 def test_splits_come_in_the_order_the_dataset_declares(tmp_path):
     """Trained before novel (the paper's Table 1, then Table 2), not alphabetically; a split no
     dataset declares comes last; a dataset not installed here falls back to the built-in order."""
-    from shapebench.boards.leaderboard import splits_with_runs
+    from shapebench.boards.splits import splits_with_runs
 
     settings = make_settings(f"sqlite:///{tmp_path / 'mlflow.db'}", tmp_path, "quick", tmp_path)
     tracker = Tracker(settings)

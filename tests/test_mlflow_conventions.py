@@ -17,7 +17,8 @@ from shapebench.store.listing import list_runs
 from shapebench.store.presentation import training_link
 from shapebench.store.provenance import git_commit
 from shapebench.store.records import TRAINING_KIND, VIEW_TAG_PREFIX
-from shapebench.store.tracking import VIEW_KEY, Tracker, training_experiment_name
+from shapebench.store.tracking import Tracker, training_experiment_name
+from shapebench.store.urls import VIEW_KEY
 
 SPLIT = ["--split", "novel", "--contexts", "50,100", "-q"]
 

@@ -11,7 +11,8 @@ import trimesh
 from shapebench.api.dataset import MeshDataset, ObjectLoadError
 from shapebench.api.types import NOVEL, Category, ObjectRef
 from shapebench.config import make_settings
-from shapebench.evaluation.runner import Runner, RunPlan
+from shapebench.evaluation.plan import RunPlan
+from shapebench.evaluation.runner import Runner
 from shapebench.registry.discovery import get_registry
 from shapebench.registry.resolve import resolve_method, resolve_metrics
 from shapebench.store.tracking import Tracker

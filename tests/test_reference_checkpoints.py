@@ -77,7 +77,8 @@ def test_the_default_profile_still_resolves_to_a_shipped_reference(name, tmp_pat
     key: the quickstart would then train that method locally (minutes), and the reference would
     no longer be what the tables say. Retrain it (scripts/reference_checkpoints.py) and commit."""
     from shapebench.config import DEFAULT_PROFILE
-    from shapebench.train.training import find_reference, reference_training
+    from shapebench.train.ticket import find_reference
+    from shapebench.train.training import reference_training
 
     # The real default, not the quick profile the other tests run at (conftest.py).
     training = reference_training(

@@ -12,7 +12,8 @@ from shapebench.config import make_settings
 from shapebench.registry.discovery import get_registry
 from shapebench.registry.resolve import resolve_dataset, resolve_method
 from shapebench.sweeps.spec import load_sweep, sweep_methods
-from shapebench.train.training import apply_trainer, checkpoint_key, profile_trainer
+from shapebench.train.ticket import apply_trainer, checkpoint_key
+from shapebench.train.training import profile_trainer
 
 SWEEPS = sorted((Path(__file__).parent.parent / "configs" / "sweeps").glob("*.yaml"))
 
@@ -172,7 +173,7 @@ def test_the_default_sweep_trains_nothing_from_a_fresh_clone(tmp_path):
     and trains nothing. A change to a method's code or options that moves its key fails here
     until its reference is retrained (scripts/reference_checkpoints.py)."""
     from shapebench.config import DEFAULT_PROFILE
-    from shapebench.train.training import find_reference
+    from shapebench.train.ticket import find_reference
 
     spec = load_sweep(Path(__file__).parent.parent / "configs/sweeps/default.yaml")
     assert spec.profile is None  # it follows the default

@@ -8,7 +8,7 @@ import torch
 
 from shapebench.api.method import Method
 from shapebench.api.types import Completion, Context, ObjectRef
-from shapebench.evaluation.runner import complete_chunk, subnormals_flushed
+from shapebench.evaluation.completion import complete_chunk, subnormals_flushed
 
 TINY = 1e-39  # a float32 subnormal
 

@@ -124,7 +124,8 @@ def test_a_completion_without_mesh_or_truth_without_mesh_is_not_applicable(metri
 
 
 def test_the_runner_records_not_applicable_apart_from_failures() -> None:
-    from shapebench.evaluation.runner import not_applicable_reasons, score, summarize
+    from shapebench.evaluation.failures import not_applicable_reasons
+    from shapebench.evaluation.scoring import score, summarize
 
     truth = oriented_points(_square(), 500, np.random.default_rng(0))
     data = _object(_square(), {GroundTruthArray.ORIENTED_POINTS.value: truth})
@@ -219,7 +220,7 @@ def test_mesh_metrics_are_na_for_points_only_rows_in_the_cli_and_the_table(
 
 
 def test_the_header_says_which_split_options_are_chosen_on() -> None:
-    from shapebench.boards.leaderboard import choices_text
+    from shapebench.boards.splits import choices_text
 
     assert "chosen on the `validation` split of `shapenet`" in choices_text("shapenet", "trained")
     assert "for choices, not reports" in choices_text("synthetic", "validation")

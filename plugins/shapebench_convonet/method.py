@@ -22,18 +22,13 @@ recipe does.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-
-import numpy as np
 
 from shapebench.api.errors import ConfigError
 from shapebench.api.options import completion_option, option, steps_option
-from shapebench.api.types import Context, Supervision
-from shapebench.implicit.method_base import ImplicitMethod
+from shapebench.api.types import Context
+from shapebench.implicit.occupancy import OccupancyMethod
 from shapebench.implicit.options import largest_component_option
-
-QUERY_SOURCES = ("uniform", "near")
 
 
 @dataclass(frozen=True)
@@ -64,16 +59,13 @@ class ConvONetOptions:
     largest_component: bool | None = largest_component_option()
 
 
-class ConvONet(ImplicitMethod):
+class ConvONet(OccupancyMethod):
     display_name = "ConvONet"
     description = "point features pooled into 3 planes + U-Net + local occupancy decoder"
-    supervision = frozenset(
-        {Supervision.SURFACE_POINTS, Supervision.OCCUPANCY_SAMPLES, Supervision.SDF_SAMPLES}
-    )
     Options = ConvONetOptions
     module_path = "shapebench_convonet.module:ConvONetModule"
     #: OccNet's ResnetBlockFC (shared from shapebench.train.blocks) is part of the network.
-    code_modules = (*ImplicitMethod.code_modules, "shapebench.train.blocks")
+    code_modules = (*OccupancyMethod.code_modules, "shapebench.train.blocks")
     #: Tiny options for ``shapebench check``: near-surface queries and a threshold of 0.3, so
     #: that a network trained 30 steps has a surface to mesh. Its planes start almost blind to
     #: the points (empty cells are 0, the U-Net's biases dominate), so the first steps only learn
@@ -94,15 +86,13 @@ class ConvONet(ImplicitMethod):
         "batch_shapes": 4,
         "mesh_resolution": 32,
     }
-    inside_is_negative = False  # the field is the occupancy logit
+    #: ``uniform``: the padded box (official); ``near``: DeepSDF's SDF samples, as OccNet's
+    #: ``queries = paper``.
+    query_sources = {"uniform": False, "near": True}
 
     def __init__(self, options=None) -> None:
         super().__init__(options)
         o = self.options
-        if o.queries not in QUERY_SOURCES:
-            raise ConfigError(
-                f"convonet: queries must be one of {list(QUERY_SOURCES)}, got {o.queries!r}"
-            )
         if not o.input_points or min(o.input_points) < 1:
             raise ConfigError(f"convonet: input_points must be sizes >= 1, got {o.input_points}")
         if o.plane_resolution % 2 ** (o.unet_depth - 1):
@@ -111,28 +101,11 @@ class ConvONet(ImplicitMethod):
                 f"2^(unet_depth - 1) = {2 ** (o.unet_depth - 1)} (the U-Net halves it per level)"
             )
 
-    def needs(self) -> frozenset[Supervision]:
-        queries = (
-            Supervision.SDF_SAMPLES
-            if self.options.queries == "near"
-            else Supervision.OCCUPANCY_SAMPLES
-        )
-        return frozenset({Supervision.SURFACE_POINTS, queries})
-
-    def sample_sizes(self) -> dict[Supervision, int]:
-        o = self.options
-        return {
-            Supervision.SURFACE_POINTS: max(o.input_points),
-            Supervision.OCCUPANCY_SAMPLES: o.query_points,
-        }
-
-    def data_module(self, ctx):
-        data = super().data_module(ctx)
-        data.queries_from_sdf = self.options.queries == "near"
-        return data
+    def encoder_points(self) -> int:
+        return max(self.options.input_points)
 
     def encode(self, contexts: list[Context]):
-        """The three planes of each context, one dict per object."""
+        """The three planes of each context, one dict per object (a batch of one each)."""
         import torch
 
         from shapebench.implicit.completion import stack_contexts
@@ -144,18 +117,5 @@ class ConvONet(ImplicitMethod):
             {key: plane[i : i + 1] for key, plane in planes.items()} for i in range(len(points))
         ]
 
-    def field(self, code):
-        import torch
-
-        decoder = self.module.decoder
-
-        @torch.no_grad()
-        def logits(points: np.ndarray) -> np.ndarray:
-            x = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float32))[None]
-            return decoder(x.to(self.device), code).cpu().numpy()[0]
-
-        return logits
-
-    def level(self) -> float:
-        tau = self.options.threshold
-        return math.log(tau / (1 - tau))  # the logit of the threshold probability
+    def decoder_code(self, code):
+        return code  # already a batch of one

@@ -21,51 +21,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from shapebench.api.options import completion_option, option, steps_option
+from shapebench.api.options import completion_option, option
 from shapebench.api.types import Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.options import (
-    largest_component_option,
-    opt_recipe_option,
-    opt_scale_option,
-    opt_steps_option,
-    recipe_option,
-)
+from shapebench.implicit.options import AutoDecoderOptions, auto_decoder_check_options
 from shapebench.implicit.recipes import with_shared
 
 
 @dataclass(frozen=True)
-class DeepSDFOptions:
-    recipe: str = recipe_option()
-    latent_dim: int = option(256, "latent code size (official: 256)")
-    width: int = option(512, "decoder layer width (512)")
-    depth: int = option(8, "decoder hidden layers (8)")
+class DeepSDFOptions(AutoDecoderOptions):
     dropout: float = option(0.2, "dropout after each hidden layer")
-    epochs: int = option(5000, "training epochs (paper: 5000)")
-    steps: int = steps_option()
-    batch_shapes: int = option(32, "objects per batch (paper: 32)")
     sdf_points: int = option(16384, "SDF samples per object and step")
     lr: float | None = option(None, "decoder learning rate [paper 1e-3, official 5e-4]")
     latent_lr: float = option(1e-3, "code learning rate")
-    lr_halve_every: int = option(500, "epochs between lr halvings")
-    lr_halve_steps: int | None = option(
-        None, "optimiser steps between lr halvings, instead of epochs (0: never halve)"
-    )
     clamp: float = option(0.1, "SDF clamping distance delta")
     code_reg: float = option(1e-4, "code regularisation weight")
-    # The test-time optimiser, shared with IGR and MSC (shapebench.implicit.recipes).
-    opt_recipe: str | None = opt_recipe_option()
-    opt_steps: int | None = opt_steps_option()
-    opt_scale_by_error: bool | None = opt_scale_option()
+    # The test-time optimiser is shared with IGR and MSC (shapebench.implicit.recipes).
     opt_lr: float | None = completion_option(
         None, "latent optimisation step [paper 1e-3 x error_0, official 5e-3]"
     )
     init_std: float = completion_option(0.01, "std of the initial latent code (0.01)")
-    mesh_resolution: int = completion_option(
-        256, "marching-cubes grid points per axis (paper: 256)"
-    )
-    mesh_bf16: bool = completion_option(False, "evaluate the decoder in bfloat16 while meshing")
-    largest_component: bool | None = largest_component_option()
 
 
 class DeepSDF(ImplicitMethod):
@@ -76,16 +51,7 @@ class DeepSDF(ImplicitMethod):
     module_path = "shapebench_deepsdf.module:DeepSDFModule"
     #: Tiny options for ``shapebench check``. Five epochs, not one: after fewer steps the tiny
     #: network has no surface to mesh.
-    check_options = {
-        "latent_dim": 8,
-        "width": 32,
-        "depth": 2,
-        "epochs": 5,
-        "batch_shapes": 4,
-        "mesh_resolution": 32,
-        "opt_steps": 5,
-        "sdf_points": 256,
-    }
+    check_options = auto_decoder_check_options(epochs=5, sdf_points=256)
     recipes = with_shared({"paper": {"lr": 1e-3}, "official": {"lr": 5e-4}}, decoder="deepsdf")
 
     def sample_sizes(self) -> dict[Supervision, int]:

@@ -25,22 +25,14 @@ from shapebench.api.errors import ConfigError
 from shapebench.api.options import completion_option, option
 from shapebench.api.types import Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.options import (
-    IGRDecoderOptions,
-    opt_recipe_option,
-    opt_scale_option,
-    opt_steps_option,
-)
+from shapebench.implicit.options import IGRDecoderOptions, auto_decoder_check_options
 from shapebench.implicit.recipes import IGR_TRAINING, with_shared
 
 
 @dataclass(frozen=True)
 class IGROptions(IGRDecoderOptions):
     latent_reg: float = option(1e-3, "latent regularisation weight")
-    # The test-time optimiser, shared with DeepSDF and MSC (shapebench.implicit.recipes).
-    opt_recipe: str | None = opt_recipe_option()
-    opt_steps: int | None = opt_steps_option()
-    opt_scale_by_error: bool | None = opt_scale_option()
+    # The test-time optimiser is shared with DeepSDF and MSC (shapebench.implicit.recipes).
     opt_lr: float | None = completion_option(
         None, "latent optimisation step [paper 1e-4 x error_0, official 5e-3]"
     )
@@ -84,16 +76,7 @@ class IGR(ImplicitMethod):
     # stable_seed derives each object's test-time draws (module.per_object_samples).
     code_modules = (*ImplicitMethod.code_modules, "shapebench.hashing")
     #: Tiny options for ``shapebench check``: a small network, one epoch, coarse meshes.
-    check_options = {
-        "latent_dim": 8,
-        "width": 32,
-        "depth": 2,
-        "epochs": 1,
-        "batch_shapes": 4,
-        "mesh_resolution": 32,
-        "opt_steps": 5,
-        "surface_points": 64,
-    }
+    check_options = auto_decoder_check_options(surface_points=64)
     # EIKONAL_SAMPLES joins IGR's copy of the shared IGR_TRAINING table only: MSC uses that
     # table too and has no opt_eikonal_samples, and apply_recipe fails on an unknown option.
     recipes = with_shared(

@@ -31,12 +31,7 @@ from dataclasses import dataclass
 from shapebench.api.options import completion_option, option
 from shapebench.api.types import Completion, Context, Supervision
 from shapebench.implicit.method_base import ImplicitMethod
-from shapebench.implicit.options import (
-    IGRDecoderOptions,
-    opt_recipe_option,
-    opt_scale_option,
-    opt_steps_option,
-)
+from shapebench.implicit.options import IGRDecoderOptions, auto_decoder_check_options
 from shapebench.implicit.recipes import IGR_TRAINING, with_shared
 
 
@@ -56,10 +51,7 @@ class MSCOptions(IGRDecoderOptions):
     max_target: int = option(5000, "largest target subset (paper: 5000)")
     sigma_init: float = option(0.1, "initial decoder noise sigma")
     sigma_min: float = option(0.01, "lower bound of the learned sigma")
-    # The post-encoder optimiser (msc only), shared with IGR and DeepSDF.
-    opt_recipe: str | None = opt_recipe_option()
-    opt_steps: int | None = opt_steps_option()
-    opt_scale_by_error: bool | None = opt_scale_option()
+    # The post-encoder optimiser (msc only) is IGR's and DeepSDF's (shapebench.implicit.recipes).
     opt_lr: float | None = completion_option(
         None, "post-encoder optimisation step (msc only) [paper 1e-4 x error_0, official 5e-3]"
     )
@@ -86,19 +78,9 @@ class MSCNoOpt(ImplicitMethod):
     checkpoint_family = "msc"
     module_path = "shapebench_msc.module:MSCModule"
     #: Tiny options for ``shapebench check`` (MSC inherits them): small networks, one epoch.
-    check_options = {
-        "latent_dim": 8,
-        "width": 32,
-        "depth": 2,
-        "epochs": 1,
-        "batch_shapes": 4,
-        "mesh_resolution": 32,
-        "opt_steps": 5,
-        "surface_points": 64,
-        "encoder_width": 16,
-        "encoder_layers": 1,
-        "max_target": 64,
-    }
+    check_options = auto_decoder_check_options(
+        surface_points=64, encoder_width=16, encoder_layers=1, max_target=64
+    )
     #: IGR's training recipes (same decoder, same Eikonal term); IGR's test-time optimiser.
     recipes = with_shared(IGR_TRAINING, decoder="igr")
     optimise = False

@@ -21,19 +21,13 @@ Paper vs official (``recipe``):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-
-import numpy as np
 
 from shapebench.api.errors import ConfigError
 from shapebench.api.options import completion_option, option, steps_option
-from shapebench.api.types import Supervision
-from shapebench.implicit.method_base import ImplicitMethod
+from shapebench.implicit.occupancy import OccupancyMethod
 from shapebench.implicit.options import largest_component_option, recipe_option
 from shapebench.implicit.recipes import with_shared
-
-QUERY_SOURCES = ("paper", "uniform")
 
 
 @dataclass(frozen=True)
@@ -81,20 +75,15 @@ class OccNetOptions:
     largest_component: bool | None = largest_component_option()
 
 
-class OccNet(ImplicitMethod):
+class OccNet(OccupancyMethod):
     display_name = "OccNet"
     description = "ResnetPointnet encoder + occupancy decoder, meshed at tau = 0.2"
-    #: Every kind either query source may need (``prepare -m occnet`` builds both); an instance
-    #: asks for one through :meth:`needs`.
-    supervision = frozenset(
-        {Supervision.SURFACE_POINTS, Supervision.OCCUPANCY_SAMPLES, Supervision.SDF_SAMPLES}
-    )
     Options = OccNetOptions
     module_path = "shapebench_occnet.module:OccNetModule"
     #: Its encoder's residual blocks (shared with ConvONet) and the recomputation of its
     #: decoder's BatchNorm statistics when training ends.
     code_modules = (
-        *ImplicitMethod.code_modules,
+        *OccupancyMethod.code_modules,
         "shapebench.train.blocks",
         "shapebench.train.batchnorm",
     )
@@ -117,54 +106,14 @@ class OccNet(ImplicitMethod):
             "official": {"decoder": "cbatchnorm", "queries": "uniform"},
         }
     )
-    inside_is_negative = False  # the field is the occupancy logit
+    #: ``paper``: DeepSDF's SDF samples (the paper's §4.1); ``uniform``: the padded box.
+    query_sources = {"paper": True, "uniform": False}
 
     def __init__(self, options=None) -> None:
         super().__init__(options)
-        if self.options.queries not in QUERY_SOURCES:
-            raise ConfigError(
-                f"occnet: queries must be one of {list(QUERY_SOURCES)}, "
-                f"got {self.options.queries!r}"
-            )
         sizes, loaded = self.options.context_sizes, self.options.surface_points
         if sizes and (min(sizes) < 1 or max(sizes) > loaded):
             raise ConfigError(
                 f"occnet: context_sizes {list(sizes)} must lie in 1..surface_points ({loaded}); "
                 f"raise surface_points (-O surface_points={max(max(sizes), loaded)})"
             )
-
-    def needs(self) -> frozenset[Supervision]:
-        queries = (
-            Supervision.SDF_SAMPLES
-            if self.options.queries == "paper"
-            else Supervision.OCCUPANCY_SAMPLES
-        )
-        return frozenset({Supervision.SURFACE_POINTS, queries})
-
-    def sample_sizes(self) -> dict[Supervision, int]:
-        o = self.options
-        return {
-            Supervision.SURFACE_POINTS: o.surface_points,
-            Supervision.OCCUPANCY_SAMPLES: o.query_points,
-        }
-
-    def data_module(self, ctx):
-        data = super().data_module(ctx)
-        data.queries_from_sdf = self.options.queries == "paper"
-        return data
-
-    def field(self, code):
-        import torch
-
-        decoder = self.module.decoder
-
-        @torch.no_grad()
-        def logits(points: np.ndarray) -> np.ndarray:
-            x = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float32))[None]
-            return decoder(x.to(self.device), code[None]).cpu().numpy()[0]
-
-        return logits
-
-    def level(self) -> float:
-        tau = self.options.threshold
-        return math.log(tau / (1 - tau))  # the logit of the threshold probability

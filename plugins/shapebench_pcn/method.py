@@ -15,11 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from shapebench.api.options import option, steps_option
-from shapebench.api.types import Completion, Context, Supervision
-from shapebench.train.lightning_method import LightningMethod
+from shapebench.train.point_cloud_method import PointCloudMethod
 
 
 @dataclass(frozen=True)
@@ -45,17 +42,16 @@ class PCNOptions:
     )
 
 
-class PCN(LightningMethod):
+class PCN(PointCloudMethod):
     display_name = "PCN"
     description = "point completion network: encoder, coarse points, folding to a dense cloud"
-    supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PCNOptions
     module_path = "shapebench_pcn.module:PCNModule"
     #: The shared Chamfer loss with the nearest-neighbour search it runs on, and
-    #: ``shapebench.implicit`` (the network's ``mlp``, the context stacking of ``encode``): they
-    #: shape its results, so they are part of its keys.
+    #: ``shapebench.implicit`` (the network's ``mlp``): they shape its results, so they are part
+    #: of its keys.
     code_modules = (
-        *LightningMethod.code_modules,
+        *PointCloudMethod.code_modules,
         "shapebench.train.losses",
         "shapebench.geometry.nearest",
         "shapebench.implicit.networks",
@@ -69,25 +65,3 @@ class PCN(LightningMethod):
         "epochs": 1,
         "batch_shapes": 4,
     }
-    batch_size = 16
-
-    def sample_sizes(self) -> dict[Supervision, int]:
-        o = self.options
-        return {
-            Supervision.SURFACE_POINTS: o.surface_points,
-            Supervision.COMPLETE_POINTS: o.target_points,
-        }
-
-    def encode(self, contexts: list[Context]) -> np.ndarray:
-        """The fine clouds, (B, num_coarse * grid_size^2, 3)."""
-        import torch
-
-        from shapebench.implicit.completion import stack_contexts
-
-        pts, _ = stack_contexts(contexts, self.device)
-        with torch.no_grad():
-            _, fine = self.module.network(pts)
-        return fine.cpu().numpy().astype(np.float32)
-
-    def decode(self, code: np.ndarray, ctx: Context, n_points: int) -> Completion:
-        return Completion(points=code)  # the fine cloud as it is: PCN's output size is fixed

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import torch
 
-from shapebench.train.lightning_fit import step_generator
-from shapebench.train.lightning_module import OptionsModule
 from shapebench.train.losses import chamfer_l1_halved
+from shapebench.train.point_cloud_module import PointCloudModule
 from shapebench_pcn.losses import alpha, sinkhorn_emd
 from shapebench_pcn.method import PCNOptions
 from shapebench_pcn.network import PCNNetwork
 
 
-class PCNModule(OptionsModule):
+class PCNModule(PointCloudModule):
     Options = PCNOptions
     options: PCNOptions
     #: The entropic regularisation of the Sinkhorn EMD (see :mod:`shapebench_pcn.losses`).
@@ -34,26 +33,11 @@ class PCNModule(OptionsModule):
             "fine": chamfer_l1_halved(fine, target).mean(),
         }
 
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        # Every batch sees one of the benchmark's context sizes, drawn from the seeded generator.
-        sizes = self.options.context_sizes
-        k = sizes[int(torch.randint(len(sizes), (1,), generator=step_generator(self)))]
-        terms = self.losses(batch["points"][:, :k], batch["complete"])
+    def combine(self, terms: dict[str, torch.Tensor]):
+        # The fine term's weight alpha grows at the step boundaries (the official schedule).
         a = alpha(self.global_step, tuple(self.options.alpha_steps))
         loss = terms["coarse"] + a * terms["fine"]
-        self.log_dict(
-            {
-                "train/loss": loss,
-                "train/coarse_emd": terms["coarse"],
-                "train/fine_cd": terms["fine"],
-                "train/alpha": a,
-            },
-            on_step=False,
-            on_epoch=True,
-            batch_size=len(batch["points"]),
-            sync_dist=True,
-        )
-        return loss
+        return loss, {"coarse_emd": terms["coarse"], "fine_cd": terms["fine"], "alpha": a}
 
     def configure_optimizers(self):
         o = self.options

@@ -22,12 +22,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from shapebench.api.errors import ConfigError
 from shapebench.api.options import option, steps_option
-from shapebench.api.types import Completion, Context, Supervision
-from shapebench.train.lightning_method import LightningMethod
+from shapebench.train.point_cloud_method import PointCloudMethod
 
 #: Initialisations of the network: the official one (``network.official_init``), or PyTorch's
 #: defaults everywhere (as the network here before 2026-11-28; for the ablation).
@@ -72,21 +69,18 @@ class PoinTrOptions:
     )
 
 
-class PoinTr(LightningMethod):
+class PoinTr(PointCloudMethod):
     display_name = "PoinTr"
     description = "point proxies + geometry-aware transformer + folding head (ICCV 2021)"
-    supervision = frozenset({Supervision.SURFACE_POINTS, Supervision.COMPLETE_POINTS})
     Options = PoinTrOptions
     module_path = "shapebench_pointr.module:PoinTrModule"
-    #: The halved Chamfer (its loss) with the nearest-neighbour search it runs on, and
-    #: ``shapebench.implicit`` (the context stacking of ``encode``) shape its results: they are
-    #: part of its keys.
+    #: The halved Chamfer (its loss) with the nearest-neighbour search it runs on, and the
+    #: recomputation of its BatchNorm statistics, shape its results: they are part of its keys.
     code_modules = (
-        *LightningMethod.code_modules,
+        *PointCloudMethod.code_modules,
         "shapebench.train.batchnorm",
         "shapebench.train.losses",
         "shapebench.geometry.nearest",
-        "shapebench.implicit.completion",
     )
     #: Tiny options for ``shapebench check``: a small network, one epoch.
     check_options = {
@@ -102,7 +96,6 @@ class PoinTr(LightningMethod):
         "epochs": 1,
         "batch_shapes": 4,
     }
-    batch_size = 16
 
     def __init__(self, options=None) -> None:
         super().__init__(options)
@@ -110,24 +103,3 @@ class PoinTr(LightningMethod):
             raise ConfigError(
                 f"pointr: init must be one of {list(INITS)}, got {self.options.init!r}"
             )
-
-    def sample_sizes(self) -> dict[Supervision, int]:
-        o = self.options
-        return {
-            Supervision.SURFACE_POINTS: o.surface_points,
-            Supervision.COMPLETE_POINTS: o.target_points,
-        }
-
-    def encode(self, contexts: list[Context]) -> np.ndarray:
-        """The dense clouds, (B, num_query * fold_step^2 + k, 3)."""
-        import torch
-
-        from shapebench.implicit.completion import stack_contexts
-
-        pts, _ = stack_contexts(contexts, self.device)
-        with torch.no_grad():
-            _, fine = self.module.network(pts)
-        return fine.cpu().numpy().astype(np.float32)
-
-    def decode(self, code: np.ndarray, ctx: Context, n_points: int) -> Completion:
-        return Completion(points=code)  # the output as it is: its size is the method's

@@ -5,14 +5,13 @@ from __future__ import annotations
 import torch
 
 from shapebench.train.batchnorm import is_final_step, recalibrate_batchnorm
-from shapebench.train.lightning_fit import step_generator
-from shapebench.train.lightning_module import OptionsModule
 from shapebench.train.losses import chamfer_l1_halved
+from shapebench.train.point_cloud_module import PointCloudModule
 from shapebench_pointr.method import PoinTrOptions
 from shapebench_pointr.network import PoinTrNetwork
 
 
-class PoinTrModule(OptionsModule):
+class PoinTrModule(PointCloudModule):
     Options = PoinTrOptions
     options: PoinTrOptions
 
@@ -37,27 +36,9 @@ class PoinTrModule(OptionsModule):
             "fine": chamfer_l1_halved(fine, target).mean(),
         }
 
-    def context_size(self, generator: torch.Generator) -> int:
-        """The context size of one batch, drawn from ``context_sizes``."""
-        sizes = self.options.context_sizes
-        return sizes[int(torch.randint(len(sizes), (1,), generator=generator))]
-
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        k = self.context_size(step_generator(self))
-        terms = self.losses(batch["points"][:, :k], batch["complete"])
-        loss = terms["coarse"] + terms["fine"]
-        self.log_dict(
-            {
-                "train/loss": loss,
-                "train/coarse_cd": terms["coarse"],
-                "train/fine_cd": terms["fine"],
-            },
-            on_step=False,
-            on_epoch=True,
-            batch_size=len(batch["points"]),
-            sync_dist=True,
-        )
-        return loss
+    def combine(self, terms: dict[str, torch.Tensor]):
+        loss = terms["coarse"] + terms["fine"]  # 1:1, as the official
+        return loss, {"coarse_cd": terms["coarse"], "fine_cd": terms["fine"]}
 
     def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
         # The folding head's BatchNorm statistics, recomputed for the final weights before the

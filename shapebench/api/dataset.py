@@ -82,7 +82,7 @@ class Dataset(ABC):
     #: them (normal consistency, IoU) are recorded as not applicable there.
     provides_ground_truth: ClassVar[frozenset[GroundTruthArray]] = frozenset()
     #: Option overrides that make the dataset tiny for ``shapebench check`` and
-    #: :mod:`shapebench.registry.testing` (few objects, few points).
+    #: :mod:`shapebench.conformance.testing` (few objects, few points).
     check_options: ClassVar[dict[str, Any]] = {}
     needs_data_root: ClassVar[bool] = False
 

@@ -103,9 +103,8 @@ class Method(ABC):
     #: checkpoint either.
     checkpoint_family: ClassVar[str] = ""
     #: Option overrides that make the method tiny for ``shapebench check`` and
-    #: :mod:`shapebench.registry.testing` (a small network, one epoch): checks train and complete
-    #: for real,
-    #: in seconds.
+    #: :mod:`shapebench.conformance.testing` (a small network, one epoch): checks train and
+    #: complete for real, in seconds.
     check_options: ClassVar[dict[str, Any]] = {}
     #: Modules besides the class's own package whose source changes results (shared training
     #: code the method imports); their code is hashed into cell and checkpoint keys together with

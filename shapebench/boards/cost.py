@@ -2,7 +2,7 @@
 steps, training shapes, final loss) and evaluation (seconds per object at test time).
 
 Training costs are read from the MLflow training run each cell names (tag ``training_run_id``),
-where :func:`shapebench.train.lightning_fit.report_summary` logged them (``summary/*`` metrics, tag
+where :func:`shapebench.train.summary.report_summary` logged them (``summary/*`` metrics, tag
 ``training_device``); evaluation seconds from the per-object tables (column ``seconds``: the
 wall time of the method's ``complete_batch`` call divided by the objects in it).
 """
@@ -18,7 +18,7 @@ import pandas as pd
 
 from shapebench.store.records import REFERENCE_TAG, TRAINING_DEVICE_TAG
 from shapebench.store.tracking import Tracker
-from shapebench.train.lightning_fit import device_count, device_hours
+from shapebench.train.summary import device_count, device_hours
 
 #: Columns :func:`row_costs` returns, besides ``variant``.
 COST_COLUMNS = [

@@ -21,15 +21,10 @@ import pandas as pd
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME
-from shapebench.boards.leaderboard import (
-    build_board,
-    label_runs,
-    load_runs,
-    per_object_tables,
-    select_runs,
-    splits_with_runs,
-    tidy_csv,
-)
+from shapebench.boards.leaderboard import build_board
+from shapebench.boards.selection import label_runs, load_runs, per_object_tables, select_runs
+from shapebench.boards.splits import splits_with_runs
+from shapebench.boards.tidy import tidy_csv
 from shapebench.config import make_settings
 from shapebench.store.records import CARD_PREFIX
 from shapebench.store.tracking import Tracker, experiment_name

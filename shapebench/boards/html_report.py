@@ -23,7 +23,6 @@ import importlib.metadata
 import platform
 import shlex
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -37,19 +36,14 @@ from shapebench import __version__
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
 from shapebench.boards.board import Board, Row, table_id, table_title
-from shapebench.boards.leaderboard import (
-    board_path,
-    build_board,
-    protocols_with_runs,
-    splits_with_runs,
-)
+from shapebench.boards.leaderboard import board_path, build_board
+from shapebench.boards.report_pictures import grids_and_spreads
+from shapebench.boards.splits import protocols_with_runs, splits_with_runs
 from shapebench.config import Settings
 from shapebench.store.tracking import Tracker, experiment_name
 
 #: Distributions whose versions the provenance section lists.
 VERSIONS = ["shapebench", "mlflow", "numpy", "scipy", "torch", "pytorch-lightning", "matplotlib"]
-#: Pictured objects drawn as qualitative grids per table, at most.
-GRIDS = 3
 
 
 @dataclass
@@ -72,10 +66,6 @@ def _e(value: object) -> str:
     return html.escape(str(value), quote=True)
 
 
-def _data_uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-
-
 def _svg(fig: Any) -> str:
     """A matplotlib figure as inline SVG markup (no XML prologue, scales with the page)."""
     import io
@@ -88,136 +78,6 @@ def _svg(fig: Any) -> str:
 
 # -- pictures read back from the cells -------------------------------------------------------
 
-
-def _picture_runs(board: Board) -> pd.DataFrame:
-    """The cell runs the grids are drawn from: per (row, context size), the lowest seed."""
-    runs = board.runs
-    if runs is None or runs.empty:
-        return pd.DataFrame(columns=["run_id", "variant_key", "context_size", "seed"])
-    return runs.sort_values("seed").drop_duplicates(["variant_key", "context_size"])
-
-
-class Artifacts:
-    """Reads a run's artifacts: straight from the folder when the store is local (the embedded
-    workspace), else downloaded; MLflow's download costs ~80 ms a file even for local files."""
-
-    def __init__(self, tracker: Tracker, run_id: str, dst: Path) -> None:
-        from urllib.parse import urlparse
-        from urllib.request import url2pathname
-
-        self.tracker, self.run_id, self.dst = tracker, run_id, dst
-        uri = tracker.artifact_uri(run_id)
-        parsed = urlparse(uri)
-        self.local = Path(url2pathname(parsed.path)) if parsed.scheme in ("", "file") else None
-
-    def path(self, name: str) -> Path:
-        if self.local is not None and (self.local / name).exists():
-            return self.local / name
-        return self.tracker.download_artifact(self.run_id, name, self.dst)
-
-    def names(self, folder: str) -> list[str]:
-        if self.local is not None and (self.local / folder).is_dir():
-            return sorted(f"{folder}/{p.name}" for p in (self.local / folder).iterdir())
-        return self.tracker.list_artifacts(self.run_id, folder)
-
-
-def _cell_pictures(tracker: Tracker, run_id: str, dst: Path) -> dict[str, dict[str, np.ndarray]]:
-    """Object id stem -> arrays of the pictures a cell logged (``pictures/*.npz``); for cells
-    logged before pictures existed, the completed ``.ply`` clouds and their contexts."""
-    out: dict[str, dict[str, np.ndarray]] = {}
-    store = Artifacts(tracker, run_id, dst)
-    if store.names("pictures"):
-        folder = store.path("pictures")
-        for npz in sorted(folder.glob("*.npz")):
-            with np.load(npz) as arrays:
-                out[npz.stem] = {k: arrays[k] for k in arrays.files}
-        return out
-    plys = [p for p in store.names("completions") if p.endswith(".ply") and ".sample" not in p]
-    if not plys:
-        return out
-    import trimesh
-
-    contexts: dict[str, np.ndarray] = {}
-    try:
-        with np.load(store.path("contexts.npz")) as c:
-            contexts = {
-                str(o).replace("/", "__"): p for o, p in zip(c["objects"], c["points"], strict=True)
-            }
-    except Exception:  # no contexts logged: the grid shows completions only
-        pass
-    for path in plys:
-        stem = Path(path).stem
-        cloud = trimesh.load(store.path(path))
-        out[stem] = {
-            "completion": np.asarray(cloud.vertices, np.float32),
-            "context": contexts.get(stem, np.zeros((0, 3), np.float32)),
-        }
-    return out
-
-
-def _grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
-    """The qualitative grids (one per pictured object, up to ``GRIDS``) and the posterior
-    spread pictures of the board's cells."""
-    from shapebench.evaluation.pictures import png_bytes, qualitative_grid
-
-    labels = {r.variant: r.label for r in board.rows}
-    cells: dict[tuple[str, int], dict[str, dict[str, np.ndarray]]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for i, run in enumerate(_picture_runs(board).to_dict("records")):
-            dst = Path(tmp) / str(i)
-            dst.mkdir()
-            key = (labels.get(run["variant_key"], run["_label"]), int(run["context_size"]))
-            cells[key] = _cell_pictures(tracker, run["run_id"], dst)
-    objects: dict[str, int] = {}
-    for pictures in cells.values():
-        for stem in pictures:
-            objects[stem] = objects.get(stem, 0) + 1
-    # The objects most cells pictured (every cell pictures the same ones; older stores differ).
-    chosen = sorted(objects, key=lambda s: (-objects[s], s))[:GRIDS]
-    grids, spreads = [], []
-    for stem in chosen:
-        completions = {k: p[stem]["completion"] for k, p in cells.items() if stem in p}
-        context_points = {
-            k[1]: p[stem]["context"]
-            for k, p in cells.items()
-            if stem in p and len(p[stem]["context"])
-        }
-        truth = next(
-            (
-                p[stem]["ground_truth"]
-                for p in cells.values()
-                if stem in p and "ground_truth" in p[stem]
-            ),
-            None,
-        )
-        obj = stem.replace("__", "/")
-        fig = qualitative_grid(
-            [r.label for r in board.rows],
-            board.contexts,
-            completions,
-            context_points,
-            truth,
-            f"{board.dataset}/{board.split}: {obj}",
-        )
-        grids.append((obj, _data_uri(png_bytes(fig))))
-        for (label, ctx), p in sorted(cells.items()):
-            if stem in p and "spread" in p[stem]:
-                spreads.append(
-                    (
-                        f"{label}, {ctx} points: {obj}",
-                        _spread_picture(p[stem], f"{label} k={ctx}: {obj}"),
-                    )
-                )
-    return grids, spreads
-
-
-def _spread_picture(arrays: dict[str, np.ndarray], title: str) -> str:
-    from shapebench.evaluation.pictures import picture_png
-
-    return _data_uri(picture_png(arrays, title))
-
-
-# -- the page ---------------------------------------------------------------------------------
 
 STYLE = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2rem auto;
@@ -354,10 +214,10 @@ def _tables(board: Board) -> str:
 
 def _winners(board: Board) -> str:
     """In words, per context size: the best row and the rows tied with it."""
-    from shapebench.boards.leaderboard import _higher_is_better
+    from shapebench.boards.cards import higher_is_better
 
     labels = {r.variant: r.label for r in board.rows}
-    direction = "highest" if _higher_is_better(board.metric, board.card) else "lowest"
+    direction = "highest" if higher_is_better(board.metric, board.card) else "lowest"
     items = []
     for ctx in board.contexts:
         s = board.significance[board.significance.context == ctx]
@@ -429,7 +289,7 @@ def _environment() -> str:
 
 
 def _section(sec: Section) -> str:
-    from shapebench.boards.leaderboard import _card_text
+    from shapebench.boards.cards import card_text
 
     b = sec.board
     raw, norm = _tables(b)
@@ -437,7 +297,7 @@ def _section(sec: Section) -> str:
     parts = [
         f'<h2 id="split-{sid}">{_e(b.dataset)} / {_e(table_title(b))}: {_e(b.metric)}</h2>',
         _winners(b),
-        f"<p><b>Metric card</b>: {_e(_card_text(b.card))}. <b>Protocol</b>: {_e(b.protocol)}; "
+        f"<p><b>Metric card</b>: {_e(card_text(b.card))}. <b>Protocol</b>: {_e(b.protocol)}; "
         f"distances in the {_e(FRAMES[b.frame][1])}.</p>",
         *(f'<p class="note">Left out: {_e(item)}.</p>' for item in b.left_out),
         f"<h3>Raw: {_e(b.metric)} x{b.scale:g}, mean ± std over objects</h3>",
@@ -535,7 +395,7 @@ def build_report(
         for name, fig in board_figures(board).items():
             files += save(fig, md.with_name(f"{md.stem}-{name}"))
             figures[name] = _svg(fig)
-        grids, spreads = _grids_and_spreads(tracker, board)
+        grids, spreads = grids_and_spreads(tracker, board)
         for obj, uri in grids:  # the grids as files too, beside the figures
             path = md.with_name(f"{md.stem}-grid-{obj.replace('/', '__')}.png")
             path.write_bytes(base64.b64decode(uri.split(",", 1)[1]))

@@ -441,6 +441,7 @@ def train(
     """
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
+    from shapebench.train.ticket import training_ticket
     from shapebench.train.training import train_here
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
@@ -449,5 +450,6 @@ def train(
     if not resolved.cls.trains:
         raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
     ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    record = train_here(resolved, ds, _trainer(settings, seed, **trainer), settings, quiet, retrain)
+    ticket = training_ticket(resolved, ds, _trainer(settings, seed, **trainer), settings, retrain)
+    record = train_here(ticket, settings, quiet)
     click.echo(f"checkpoint: {record['path']}")

@@ -139,23 +139,30 @@ def check(
     """
     import time
 
-    from shapebench.registry import check as checks
+    from shapebench.conformance.framework import (
+        FAIL,
+        PASS,
+        SKIP,
+        CheckEnv,
+        ComponentReport,
+        failure_lines,
+        summary,
+    )
+    from shapebench.conformance.runner import run_checks, select_components
     from shapebench.registry.discovery import get_registry
 
     start = time.perf_counter()
     registry = get_registry()
-    comps = checks.select_components(
-        registry, distribution, method_names, dataset_names, metric_names
-    )
+    comps = select_components(registry, distribution, method_names, dataset_names, metric_names)
     overrides = {"method": _parse(method_opts, "-O"), "dataset": _parse(dataset_opts, "-D")}
     debug = bool(os.environ.get("SHAPEBENCH_DEBUG"))
-    colors = {checks.PASS: "green", checks.FAIL: "red", checks.SKIP: "yellow"}
+    colors = {PASS: "green", FAIL: "red", SKIP: "yellow"}
     reports = []
-    with checks.CheckEnv(registry) as env:
+    with CheckEnv(registry) as env:
         for comp in comps:
             click.secho(comp.title, bold=True)
-            report = checks.ComponentReport(comp)
-            for res in checks.run_checks(comp, env, overrides.get(comp.kind), data_root):
+            report = ComponentReport(comp)
+            for res in run_checks(comp, env, overrides.get(comp.kind), data_root):
                 report.results.append(res)
                 took = f" ({res.seconds:.1f}s)" if res.seconds >= 1 else ""
                 click.echo(
@@ -168,13 +175,13 @@ def check(
                         if text.strip():
                             click.echo("      " + text.strip().replace("\n", "\n      "))
             reports.append(report)
-    failures = checks.failure_lines(reports)
+    failures = failure_lines(reports)
     results = [r for rep in reports for r in rep.results]
     click.echo("")
     for line in failures:
         click.secho(f"FAILED {line}", fg="red")
     click.secho(
-        checks.summary(results, time.perf_counter() - start),
+        summary(results, time.perf_counter() - start),
         bold=True,
         fg="red" if failures else "green",
     )

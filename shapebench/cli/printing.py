@@ -26,7 +26,7 @@ def print_summary(outcome: EvalOutcome, settings: Settings) -> None:
     context size, failures and their most common reasons (``--debug``: with tracebacks)."""
     import os
 
-    from shapebench.evaluation.runner import TOP_REASONS
+    from shapebench.evaluation.failures import TOP_REASONS
 
     debug = bool(os.environ.get("SHAPEBENCH_DEBUG"))
     metric = outcome.primary_metric

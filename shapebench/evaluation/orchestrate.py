@@ -15,7 +15,9 @@ from shapebench.api.method import Method, TrainerOptions
 from shapebench.api.protocol import Protocol
 from shapebench.api.types import TRAIN
 from shapebench.config import Settings, plugin_overrides
-from shapebench.evaluation.runner import CellResult, Runner, RunPlan, validate_contexts
+from shapebench.evaluation.plan import RunPlan, validate_contexts
+from shapebench.evaluation.results import CellResult
+from shapebench.evaluation.runner import Runner
 from shapebench.registry.discovery import get_registry
 from shapebench.registry.resolve import (
     ResolvedMethod,
@@ -26,15 +28,13 @@ from shapebench.registry.resolve import (
 from shapebench.registry.variant import Variant, make_variant
 from shapebench.store.tracking import Tracker
 from shapebench.train.references import GivenCheckpoint, given_checkpoint
-from shapebench.train.training import (
+from shapebench.train.ticket import (
+    TrainingTicket,
     apply_trainer,
-    checkpoint_key,
-    ensure_checkpoint,
-    find_reference,
-    profile_trainer,
     training_identity,
-    weights_origin,
+    training_ticket,
 )
+from shapebench.train.training import ensure_checkpoint, profile_trainer
 
 
 @dataclass
@@ -110,7 +110,9 @@ class Resolved:
 @dataclass
 class SeedPlan:
     """One seed of a request: its trainer settings, method (with ``--max-epochs`` applied), the
-    cells' plan and the checkpoint it needs (``checkpoint["key"]`` for trainable methods)."""
+    cells' plan and the checkpoint it needs (``checkpoint["key"]`` for trainable methods), and
+    the ticket of its training (None: the method does not train, or ``--checkpoint`` gave the
+    weights)."""
 
     seed: int
     trainer: TrainerOptions
@@ -118,6 +120,7 @@ class SeedPlan:
     plan: RunPlan
     checkpoint: dict[str, Any]
     variant: Variant
+    ticket: TrainingTicket | None = None
 
 
 def resolve_request(req: EvalRequest, settings: Settings) -> Resolved:
@@ -178,26 +181,18 @@ def seed_plans(
     out = []
     for seed in req.seeds:
         trainer = trainer_for_seed(seed)
-        seed_method = apply_trainer(method, trainer) if method.cls.trains else method
-        checkpoint: dict[str, Any] = {}
-        training = None
-        origin = None  # of the weights: see shapebench.train.references
-        if method.cls.trains:
-            if given is not None:
-                checkpoint["key"] = given.digest
-            else:
-                checkpoint["key"] = checkpoint_key(seed_method, dataset, trainer)
-                training = training_identity(seed_method, trainer)
-                checkpoint["training"] = training
-                reference = find_reference(seed_method, checkpoint["key"])
-                origin = weights_origin(
-                    settings, seed_method, checkpoint["key"], req.retrain, reference
-                )
-                if origin:  # shipped weights are not those a local training would give
-                    checkpoint["weights"] = origin
-                elif reference is not None:
-                    origin = "local"  # a row beside the reference's: its label says so
-        variant = _variant(seed_method, dataset, req, settings, trainer, training, origin, given)
+        # The seed's training, computed once here: its key, folder and shipped reference serve
+        # the cells' keys, the row and ensure_checkpoint alike.
+        ticket = None
+        checkpoint: dict[str, Any]
+        if not method.cls.trains:
+            seed_method, checkpoint = method, {}
+        elif given is not None:  # the given file's digest stands for the checkpoint key
+            seed_method, checkpoint = apply_trainer(method, trainer), {"key": given.digest}
+        else:
+            ticket = training_ticket(method, dataset, trainer, settings, req.retrain)
+            seed_method, checkpoint = ticket.method, ticket.cell_checkpoint()
+        variant = _variant(seed_method, dataset, req, settings, ticket, given)
         plan = RunPlan(
             seed_method,
             dataset,
@@ -211,7 +206,7 @@ def seed_plans(
             req.protocol,
             variant,
         )
-        out.append(SeedPlan(seed, trainer, seed_method, plan, checkpoint, variant))
+        out.append(SeedPlan(seed, trainer, seed_method, plan, checkpoint, variant, ticket))
     return out
 
 
@@ -229,9 +224,7 @@ def evaluate(
     weights_seconds: list[float] = []
     for sp in seed_plans(req, resolved, settings, trainer_for_seed):
         variant = sp.variant
-        make = _method_factory(
-            sp.method, resolved.dataset, req, settings, sp.trainer, sp.checkpoint, weights_seconds
-        )
+        make = _method_factory(sp, req, settings, weights_seconds)
         cells += runner.run(sp.plan, make)
     return EvalOutcome(
         resolved.method, resolved.dataset, resolved.primary, cells, variant, sum(weights_seconds)
@@ -243,17 +236,20 @@ def _variant(
     dataset: Dataset,
     req: EvalRequest,
     settings: Settings,
-    trainer: TrainerOptions,
-    training: dict[str, Any] | None,
-    weights: str | None = None,
+    ticket: TrainingTicket | None = None,
     given: GivenCheckpoint | None = None,
 ) -> Variant:
-    """The leaderboard row of this run (see :mod:`shapebench.registry.variant`); ``given``: the
+    """The leaderboard row of this run (see :mod:`shapebench.registry.variant`); ``ticket``: the
+    seed's training (None: no training of this process gives the weights); ``given``: the
     checkpoint file of ``run --checkpoint``."""
     training_overrides: dict[str, Any] = {}
-    if training is not None:
-        training = {k: v for k, v in training.items() if k != "seed"}
-        base = training_identity(method, profile_trainer(settings, trainer.seed))
+    training = None
+    if ticket is not None:
+        training = {k: v for k, v in ticket.identity.items() if k != "seed"}
+        profile = profile_trainer(settings, ticket.seed)
+        # The row's label shows what differs from the profile's trainer; with that very trainer
+        # (no command-line override), the baseline is the ticket's own identity.
+        base = ticket.identity if profile == ticket.trainer else training_identity(method, profile)
         shown = {k for k in ("epochs", "steps") if hasattr(method.options, k)}
         training_overrides = {  # the budget shows as the method's own option when it has one
             k: v for k, v in training.items() if k not in shown and base.get(k) != v
@@ -274,7 +270,7 @@ def _variant(
         checkpoint_file=given.digest if given else None,
         checkpoint_name=given.name if given else None,
         label=req.label,
-        weights=weights,
+        weights=ticket.row_weights if ticket is not None else None,
     )
 
 
@@ -294,32 +290,28 @@ def _training_data_overrides(dataset: Dataset, settings: Settings) -> dict[str, 
 
 
 def _method_factory(
-    method: ResolvedMethod,
-    dataset: Dataset,
+    sp: SeedPlan,
     req: EvalRequest,
     settings: Settings,
-    trainer: TrainerOptions,
-    checkpoint: dict[str, str],
     weights_seconds: list[float],
 ) -> Callable[[], Method]:
-    """The runner's method factory; the wall time of each :func:`ensure_checkpoint` (a training,
-    or a reference install) is appended to ``weights_seconds``."""
+    """The runner's method factory for seed plan ``sp``; the wall time of each
+    :func:`ensure_checkpoint` of its ticket (a training, or a reference install) is appended to
+    ``weights_seconds``."""
+    method, ticket, checkpoint = sp.method, sp.ticket, sp.checkpoint
 
     def make() -> Method:
         instance = method.instantiate()
         if method.cls.trains:
-            if req.checkpoint:
+            if ticket is None:  # --checkpoint
                 path = req.checkpoint
             else:
                 start = time.perf_counter()
                 record = ensure_checkpoint(
-                    method,
-                    dataset,
-                    trainer,
+                    ticket,
                     settings,
                     Path(req.data_root) if req.data_root else None,
                     req.quiet,
-                    retrain=req.retrain,
                 )
                 weights_seconds.append(time.perf_counter() - start)
                 path = record["path"]

@@ -4,9 +4,8 @@ Every cell draws the same few objects (:func:`picture_objects`, chosen from the 
 list, not from which objects succeeded), so two methods' pictures of one object sit side by side.
 A picture shows, per view, the context points, the completion and the ground truth (and, for a
 method that returns posterior samples, the completion coloured by the per-point spread of
-:func:`shapebench.evaluation.runner.posterior_spread`). The arrays a picture was drawn from are kept
-too
-(:func:`picture_arrays`, ``pictures/<object>.npz``), so the qualitative grid
+:func:`shapebench.evaluation.scoring.posterior_spread`). The arrays a picture was drawn from are
+kept too (:func:`picture_arrays`, ``pictures/<object>.npz``), so the qualitative grid
 (:func:`qualitative_grid`: rows = methods, columns = context sizes, like the paper's Figures 2-20)
 is drawn from the runs in MLflow without loading the dataset again.
 

@@ -1,156 +1,38 @@
 """Evaluate one method on one dataset: every split, context size and seed is a *cell*.
 
 For each cell the runner draws the (stored) contexts, asks the method for completions, scores
-them with every metric, and logs one MLflow child run with the per-object table as an artifact.
-A failure of one object (unreadable mesh, NaN output, an exception in the method) is recorded in
-that table and counted; the other objects go on.
+them with every metric, and logs one MLflow child run with the per-object table as an artifact;
+the new cells of a split hang under one parent run. A failure of one object (unreadable mesh, NaN
+output, an exception in the method) is recorded in that table and counted; the other objects go
+on. What a cell is and its key: :mod:`~shapebench.evaluation.plan`; scoring:
+:mod:`~shapebench.evaluation.scoring`; the failure reasons: :mod:`~shapebench.evaluation.failures`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import sys
-import tempfile
-import time
-from collections import OrderedDict
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from shapebench import __version__
-from shapebench.api.contexts import CONTEXTS_VERSION, ContextStore, contexts_digest
-from shapebench.api.dataset import Dataset, ObjectLoadError
-from shapebench.api.errors import ShapebenchError
+from shapebench.api.contexts import ContextStore, contexts_digest
+from shapebench.api.dataset import ObjectLoadError
 from shapebench.api.method import Method
-from shapebench.api.metric import Metric, NotApplicable
-from shapebench.api.protocol import Protocol
-from shapebench.api.types import Completion, Context, GroundTruthArray, ObjectData, ObjectRef
+from shapebench.api.types import ObjectRef
+from shapebench.evaluation.artifacts import EXAMPLE_PLYS, log_cell_artifacts
+from shapebench.evaluation.completion import complete_chunk
+from shapebench.evaluation.failures import distinct_errors, metric_errors, not_applicable_reasons
+from shapebench.evaluation.objects import ObjectCache, check_context_sizes
+from shapebench.evaluation.plan import RunPlan, cell_record, planned_cells
+from shapebench.evaluation.results import CellResult
+from shapebench.evaluation.scoring import score, summarize
 from shapebench.hashing import stable_hash
-from shapebench.registry.resolve import ResolvedMethod
-from shapebench.registry.variant import Variant
 from shapebench.store import presentation
 from shapebench.store.failures import store_failure
-from shapebench.store.provenance import git_commit
-from shapebench.store.records import CellRecord
 from shapebench.store.tracking import Tracker, experiment_name, flatten
-
-#: Chart colors of the method variants in the MLflow UI (matplotlib's tab10).
-EXAMPLE_PLYS = 3  # pictured objects per cell (shapebench.evaluation.pictures.PICTURES_PER_CELL)
-#: Distinct failure reasons printed per cell: enough that a folder with a few broken files names
-#: every one of them, few enough that a dataset failing object by object stays readable.
-TOP_REASONS = 10
-#: Per-object column prefix holding the error of a metric that raised on that object.
-METRIC_ERROR = "metric_error."
-#: Per-object column prefix holding why a metric does not apply to that object (the metric
-#: raised :class:`~shapebench.api.metric.NotApplicable`): not an error, and no value.
-NOT_APPLICABLE = "not_applicable."
-
-
-def _traceback(exc: BaseException) -> str:
-    import traceback
-
-    return "".join(traceback.format_exception(exc)).strip()
-
-
-@dataclass
-class CellResult:
-    split: str
-    context_size: int
-    seed: int
-    run_id: str
-    skipped: bool
-    metrics: dict[str, float]
-    experiment_id: str
-    #: The most common failure reasons of this cell with their counts (new cells only).
-    reasons: list[tuple[str, int]] = field(default_factory=list)
-    #: Where the per-object table is (an artifact URI).
-    table_uri: str = ""
-    #: The traceback of the first object behind each reason (for ``--debug``).
-    tracebacks: dict[str, str] = field(default_factory=dict)
-    #: Metric name -> the card its values follow (:meth:`MetricCard.as_tag`).
-    cards: dict[str, str] = field(default_factory=dict)
-    #: (metric, reason, objects) for each metric that did not apply to some objects (new cells).
-    not_applicable: list[tuple[str, str, int]] = field(default_factory=list)
-
-    def scale(self, metric: str) -> float:
-        """The factor ``metric``'s values are shown with (its card's), 1 when unknown."""
-        from shapebench.api.metric import MetricCard
-
-        try:
-            return MetricCard.from_tag(self.cards[metric]).scale
-        except (KeyError, ValueError):
-            return 1.0
-
-    @property
-    def n_objects(self) -> int:
-        return int(self.metrics.get("n_objects", 0))
-
-    @property
-    def n_ok(self) -> int:
-        return self.n_objects - int(self.metrics.get("failures", 0))
-
-
-@dataclass
-class RunPlan:
-    method: ResolvedMethod
-    dataset: Dataset
-    splits: list[str]
-    contexts: list[int]
-    seeds: list[int]
-    metrics: list[Metric]
-    force: bool = False
-    quiet: bool = False
-    checkpoint: dict[str, Any] = field(default_factory=dict)  # key/path/run id when trained
-    protocol: Protocol = field(default_factory=Protocol)
-    variant: Variant | None = None
-
-
-def validate_contexts(contexts: list[int]) -> list[int]:
-    if not contexts:
-        raise ShapebenchError("no context sizes given", "e.g. --contexts 50,100,300,1000")
-    bad = [c for c in contexts if not isinstance(c, int) or c <= 0]
-    if bad:
-        raise ShapebenchError(f"context sizes must be positive integers, got {bad}")
-    return sorted(set(contexts))
-
-
-def cell_config(plan: RunPlan, split: str, size: int, seed: int, eval_points: int) -> dict:
-    """Everything that determines a cell's result; its hash is the cell key. The method part
-    holds a digest of its code, and the checkpoint key the training settings and data."""
-    frame = plan.protocol.frame
-    cfg = {
-        "protocol": plan.protocol.config(),
-        "method": plan.method.config(),
-        "dataset": plan.dataset.config(),
-        "split": split,
-        "context_size": size,
-        "seed": seed,
-        "contexts": CONTEXTS_VERSION,
-        "metrics": {m.name: m.card(eval_points).in_frame(frame).as_tag() for m in plan.metrics},
-        "checkpoint": plan.checkpoint.get("key"),
-        "training": plan.checkpoint.get("training"),
-    }
-    if plan.checkpoint.get("weights"):  # shipped weights (reference checkpoints); local: absent,
-        cfg["weights"] = plan.checkpoint["weights"]  # so cells of local trainings keep their keys
-    return cfg
-
-
-def planned_cells(plan: RunPlan, split: str) -> list[tuple[int, int, dict, str]]:
-    """``(seed, context size, config, cell key)`` of every cell of ``plan`` on ``split``."""
-    opts = plan.dataset.options
-    eval_points = opts.gt_points if hasattr(opts, "gt_points") else 0
-    out = []
-    for seed in plan.seeds:
-        for size in validate_contexts(plan.contexts):
-            cfg = cell_config(plan, split, size, seed, eval_points)
-            out.append((seed, size, cfg, stable_hash(cfg)))
-    return out
 
 
 def _cached(split: str, size: int, seed: int, done: Any, exp_id: str, cfg: dict) -> CellResult:
@@ -160,320 +42,10 @@ def _cached(split: str, size: int, seed: int, done: Any, exp_id: str, cfg: dict)
     )
 
 
-def failure_reasons(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int]]:
-    """The most common errors of a per-object table (failed objects, and metrics that raised
-    on an object, as ``metric NAME: ...``), with their counts."""
-    return [(reason, n) for reason, n, _ in distinct_errors(table, top)]
-
-
-def distinct_errors(table: pd.DataFrame, top: int = TOP_REASONS) -> list[tuple[str, int, str]]:
-    """(first line of the error, count, the first such object's traceback), most common first."""
-    errors: list[tuple[str, str]] = []
-    tracebacks = table["traceback"] if "traceback" in table else pd.Series("", index=table.index)
-    if "status" in table and "error" in table:
-        for i in table.index[table["status"] != "ok"]:
-            errors.append((_first_line(table.at[i, "error"]), tracebacks.get(i, "")))
-    for col in [c for c in table.columns if str(c).startswith(METRIC_ERROR)]:
-        name = str(col)[len(METRIC_ERROR) :]
-        for i in table.index[table[col].notna() & (table[col] != "")]:
-            errors.append(
-                (f"metric {name}: {_first_line(table.at[i, col])}", tracebacks.get(i, ""))
-            )
-    counts: dict[str, list] = {}
-    for reason, tb in errors:
-        entry = counts.setdefault(reason, [0, tb if isinstance(tb, str) else ""])
-        entry[0] += 1
-    ranked = sorted(counts.items(), key=lambda kv: -kv[1][0])[:top]
-    return [(reason, n, tb) for reason, (n, tb) in ranked]
-
-
-def _first_line(error: object) -> str:
-    text = str(error) if isinstance(error, str) and error else "unknown"
-    return text.splitlines()[0][:200]
-
-
-def not_applicable(table: pd.DataFrame, metric: str) -> pd.Series:
-    """Per row of a per-object table, whether ``metric`` did not apply to that object."""
-    col = f"{NOT_APPLICABLE}{metric}"
-    if col not in table:
-        return pd.Series(False, index=table.index)
-    return table[col].notna() & (table[col].astype(str) != "")
-
-
-def not_applicable_reasons(table: pd.DataFrame) -> list[tuple[str, str, int]]:
-    """(metric, reason, objects) for every metric that did not apply to some object."""
-    out = []
-    for col in [c for c in table.columns if str(c).startswith(NOT_APPLICABLE)]:
-        reasons = table[col][not_applicable(table, str(col)[len(NOT_APPLICABLE) :])]
-        for reason, n in reasons.astype(str).value_counts().items():
-            out.append((str(col)[len(NOT_APPLICABLE) :], str(reason), int(n)))
-    return out
-
-
-def metric_errors(table: pd.DataFrame) -> list[str]:
-    """The metrics that raised on some object of this per-object table."""
-    return sorted(
-        str(c)[len(METRIC_ERROR) :]
-        for c in table.columns
-        if str(c).startswith(METRIC_ERROR) and table[c].notna().any() and (table[c] != "").any()
-    )
-
-
-class ObjectCache:
-    """Keeps recently loaded objects in memory across the cells of a run."""
-
-    def __init__(
-        self, dataset: Dataset, capacity: int = 64, need: frozenset[GroundTruthArray] = frozenset()
-    ) -> None:
-        self.dataset = dataset
-        self.capacity = capacity
-        #: Ground-truth arrays the run's metrics read, among those the dataset can build.
-        self.need = need & dataset.provides_ground_truth
-        self._items: OrderedDict[str, ObjectData | ObjectLoadError] = OrderedDict()
-
-    def get(self, ref: ObjectRef) -> ObjectData:
-        item = self._items.get(ref.id)
-        if item is None:
-            try:
-                item = self.dataset.load(ref, self.need) if self.need else self.dataset.load(ref)
-            except ObjectLoadError as exc:
-                item = exc
-            self._items[ref.id] = item
-            if len(self._items) > self.capacity:
-                self._items.popitem(last=False)
-        else:
-            self._items.move_to_end(ref.id)
-        if isinstance(item, ObjectLoadError):
-            raise item
-        return item
-
-
 def _progress(total: int, desc: str, quiet: bool):
     from shapebench.progress import progress_bar
 
     return progress_bar(total, desc, quiet)
-
-
-def check_context_sizes(
-    refs: list[ObjectRef],
-    cache: ObjectCache,
-    sizes: list[int],
-    quiet: bool,
-    label: str,
-    protocol: Protocol,
-    store: ContextStore,
-) -> None:
-    """Load (and if needed preprocess) every object; refuse sizes some object cannot provide
-    (visible surface points; under ``--protocol crop`` or ``depth`` the partial cloud the store
-    samples contexts from: what a crop leaves, what the camera sees)."""
-    partial = protocol.context in ("crop", "depth")
-    fewest: tuple[int, str] | None = None
-    with _progress(len(refs), f"preparing {label}", quiet) as bar:
-        for ref in refs:
-            try:
-                data = cache.get(ref)
-                if partial:
-                    n = len(store.partial_points(data, protocol))
-                else:
-                    n = len(data.surface_points)
-                if fewest is None or n < fewest[0]:
-                    fewest = (n, ref.id)
-            except ObjectLoadError:
-                pass  # counted as a failure in every cell
-            bar.update()
-    if fewest is None or max(sizes) <= fewest[0]:
-        return
-    n, obj = fewest
-    if not partial:
-        raise ShapebenchError(
-            f"context size {max(sizes)} is larger than the {n} visible surface points of "
-            f"object {obj!r} ({label})",
-            f"use context sizes up to {n}, or sample more surface points "
-            "(-D surface_candidates=...)",
-        )
-    if protocol.context == "depth":
-        what = f"object {obj!r} shows its depth camera"
-    else:
-        what = f"a crop of {protocol.crop_fraction:g} leaves of object {obj!r}"
-    raise ShapebenchError(
-        f"context size {max(sizes)} is larger than the {n} ground-truth points {what} ({label})",
-        f"use context sizes up to {n}, or more ground-truth points (-D gt_points=...)",
-    )
-
-
-def _valid_points(completion: Any) -> str | None:
-    """Why a completion cannot be scored, or None if it can."""
-    if not isinstance(completion, Completion):
-        return f"complete() returned {type(completion).__name__}, not a Completion"
-    pts = np.asarray(completion.points)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        return f"completion points have shape {pts.shape}, expected (n, 3)"
-    if len(pts) == 0:
-        return "completion has no points"
-    if not np.all(np.isfinite(pts)):
-        return f"completion has {int((~np.isfinite(pts)).any(axis=1).sum())} NaN/inf points"
-    return None
-
-
-def scaled(data: ObjectData, ctx: Context, completion: Completion, factor: float):
-    """Copies of what metrics read, with every coordinate multiplied by ``factor`` (the
-    protocol's evaluation frame); the originals, and the caches built on them, are untouched."""
-    from dataclasses import replace
-
-    if factor == 1.0:
-        return data, ctx, completion
-    sdata = replace(
-        data,
-        gt_points=data.gt_points * factor,
-        surface_points=data.surface_points * factor,
-        extra={k: _scaled_extra(k, v, factor) for k, v in data.extra.items()},
-        cache={},
-    )
-    sctx = replace(ctx, points=ctx.points * factor)
-    mesh = completion.mesh
-    if mesh is not None:
-        mesh = mesh.copy()
-        mesh.apply_scale(factor)
-    scomp = Completion(
-        points=(completion.points * factor).astype(np.float32),
-        mesh=mesh,
-        samples=[s * factor for s in completion.samples] if completion.samples else None,
-        info=completion.info,
-    )
-    return sdata, sctx, scomp
-
-
-def _scaled_extra(name: str, array: np.ndarray, factor: float) -> np.ndarray:
-    """A ground-truth array in the evaluation frame: its first three columns are coordinates;
-    normals and occupancy labels do not scale."""
-    if name not in {k.value for k in GroundTruthArray}:
-        return array
-    out = np.array(array, copy=True)
-    out[:, :3] *= factor
-    return out
-
-
-def score(
-    outcome: Completion | Exception,
-    data: ObjectData,
-    ctx: Context,
-    metrics: list[Metric],
-    frame_scale: float = 1.0,
-) -> tuple[dict[str, Any], Completion | None]:
-    """The per-object row for one method output: scores (in the protocol's frame, scaled by
-    ``frame_scale``), or the reason it failed."""
-    row: dict[str, Any] = {"status": "ok", "error": ""}
-    if isinstance(outcome, Exception):  # the method's failure must not lose the other objects
-        row.update(
-            status="failed",
-            error=f"{type(outcome).__name__}: {outcome}",
-            traceback=_traceback(outcome),
-        )
-        return row, None
-    problem = _valid_points(outcome)
-    if problem:
-        row.update(status="failed", error=problem)
-        return row, None
-    outcome.points = np.asarray(outcome.points, dtype=np.float32)
-    row["n_points"] = len(outcome.points)
-    sdata, sctx, scomp = scaled(data, ctx, outcome, frame_scale)
-    for metric in metrics:
-        # A metric that crashes costs its own value only: the other metrics of the object stand,
-        # and the object's status (the method's success) is unchanged.
-        try:
-            value = float(metric.compute(scomp, sdata, sctx))
-            if not math.isfinite(value):
-                raise ValueError(f"the metric returned {value}")
-        except NotApplicable as exc:  # no value, and no error: the reason is recorded
-            row[metric.name] = math.nan
-            row[f"{NOT_APPLICABLE}{metric.name}"] = str(exc) or "not applicable"
-            continue
-        except Exception as exc:
-            row[metric.name] = math.nan
-            row[f"{METRIC_ERROR}{metric.name}"] = f"{type(exc).__name__}: {exc}"
-            row.setdefault("traceback", _traceback(exc))
-            continue
-        row[metric.name] = value
-    for key, value in (outcome.info or {}).items():
-        row[f"info.{key}"] = value
-    if outcome.samples:
-        spread = posterior_spread(outcome.points, outcome.samples)
-        outcome.cache["spread"] = spread
-        row["posterior_spread"] = float(spread.mean()) * frame_scale
-    return row, outcome
-
-
-def posterior_spread(points: np.ndarray, samples: list[np.ndarray]) -> np.ndarray:
-    """Per point of the completion, the RMS over posterior samples of the distance to the nearest
-    point of each sample: how uncertain the completion is there."""
-    from shapebench.geometry.nearest import nearest_distances
-
-    d = np.stack([nearest_distances(points, s) for s in samples if len(s)])
-    return np.sqrt((d**2).mean(axis=0)).astype(np.float32)
-
-
-@contextmanager
-def subnormals_flushed() -> Iterator[None]:
-    """Subnormal floats flushed to zero in torch's CPU arithmetic on this thread, for the span of
-    a completion; the setting it found is restored after.
-
-    Softplus(beta=100), the activation of IGR's, MSC's and MSC-hier's decoders, computes
-    ``exp(100 x)``, which is subnormal for x below about -0.87: everywhere far from the surface,
-    where meshing evaluates the field most. x86 CPUs compute on subnormals many times slower.
-    Flushed, a one-thread completion is 2.1x (IGR) to 3.2x (MSC w/o opt) faster, with bitwise the
-    same points (benchmarks/bench_completion.py; benchmarks/README.md). The flag is per thread:
-    torch's own worker threads keep subnormals, so the gain is a one-thread worker's (``sweep
-    -j 2`` on 2 cores), hardly a two-thread process's (1.02-1.07x). Nothing here imports torch:
-    a method that uses it has imported it by now. Training is left as it is (its weights are what
-    keys name).
-    """
-    torch = sys.modules.get("torch")
-    if torch is None:
-        yield
-        return
-    flushed = bool((torch.tensor([1e-39]) * 1.0).item() == 0.0)  # no getter for the flag
-    torch.set_flush_denormal(True)
-    try:
-        yield
-    finally:
-        torch.set_flush_denormal(flushed)
-
-
-def complete_chunk(method: Method, contexts: list[Context], n_points: int):
-    """The method's outputs for a chunk of contexts, and the seconds spent per object."""
-    start = time.perf_counter()
-    try:
-        with subnormals_flushed():
-            outputs = method.complete_batch(contexts, n_points)
-        if len(outputs) != len(contexts):
-            raise RuntimeError(
-                f"complete_batch returned {len(outputs)} results for {len(contexts)} contexts"
-            )
-    except Exception as exc:  # a crash of the whole batch fails these objects only
-        outputs = [exc] * len(contexts)
-    return outputs, (time.perf_counter() - start) / max(len(contexts), 1)
-
-
-def summarize(table: pd.DataFrame, metrics: list[Metric]) -> dict[str, float]:
-    ok = table[table["status"] == "ok"]
-    out: dict[str, float] = {
-        "n_objects": float(len(table)),
-        "failures": float(len(table) - len(ok)),
-    }
-    for m in metrics:
-        values = ok[m.name].to_numpy(dtype=float) if m.name in ok else np.array([])
-        values = values[np.isfinite(values)]  # NaN: the metric raised or did not apply
-        na = not_applicable(ok, m.name)
-        if na.any():
-            out[f"{m.name}.not_applicable"] = float(na.sum())
-        if f"{METRIC_ERROR}{m.name}" in ok:
-            out[f"{m.name}.errors"] = float(len(ok) - len(values) - int(na.sum()))
-        if len(values):
-            out[f"{m.name}.mean"] = float(values.mean())
-            out[f"{m.name}.std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
-            out[f"{m.name}.median"] = float(np.median(values))
-    out["seconds_per_object"] = float(table["seconds"].mean()) if len(table) else 0.0
-    return out
 
 
 @dataclass(frozen=True)
@@ -704,7 +276,7 @@ class Runner:
         cache, store, exp_id = work.cache, work.store, work.exp_id
         tr = self.tracker
         tr.abandon_stale(exp_id, key)
-        record = self._record(plan, split, size, seed, key, cfg)
+        record = cell_record(plan, split, size, seed, key, cfg)
         run_id = tr.start_run(
             exp_id,
             self._heading(plan, split).run_name(f"k={size} seed={seed}"),
@@ -768,7 +340,8 @@ class Runner:
             )
             tr.log_params(run_id, flatten("", cfg))
             tr.log_metrics(run_id, summary, step=size)
-            self._log_artifacts(
+            log_cell_artifacts(
+                tr,
                 run_id,
                 table,
                 contexts,
@@ -776,6 +349,7 @@ class Runner:
                 truths,
                 f"{self._label(plan)} k={size}",
                 spare[: max(EXAMPLE_PLYS - len(examples), 0)],
+                self.echo,
             )
         except BaseException as exc:
             tr.end_after(run_id, exc)
@@ -837,101 +411,3 @@ class Runner:
         line = f"  {ds.name}/{split}: {len(refs)} objects in {cats} categories"
         notes = ds.selection_notes(split)
         self.echo(line + (f" ({'; '.join(notes)})" if notes else ""))
-
-    def _record(
-        self, plan: RunPlan, split: str, size: int, seed: int, key: str, cfg: dict
-    ) -> CellRecord:
-        ds = plan.dataset
-        plugin = plan.method.registration.plugin
-        variant = plan.variant
-        return CellRecord(
-            cell_key=key,
-            method=plan.method.name,
-            dataset=ds.name,
-            split=split,
-            context_size=size,
-            seed=seed,
-            cards=dict(cfg["metrics"]),
-            display_name=plan.method.display_name,
-            trains=bool(plan.method.cls.trains),
-            method_code=cfg["method"]["code"],
-            dataset_version=ds.version,
-            fingerprint=ds.fingerprint(),
-            data_root=str(ds.data_root) if ds.data_root else "",
-            shapebench_version=__version__,
-            plugin_distribution=plugin.distribution,
-            plugin_version=plugin.version,
-            git_commit=git_commit(),
-            checkpoint_key=str(plan.checkpoint.get("key") or ""),
-            training_run_id=str(plan.checkpoint.get("run_id") or ""),
-            frame=plan.protocol.frame,
-            context_normals=plan.protocol.context_normals,
-            context_protocol="" if plan.protocol.is_default_context else plan.protocol.name,
-            variant_key=variant.key if variant else "",
-            variant_label=variant.label if variant else "",
-            variant_overrides=dict(variant.overrides) if variant else {},
-        )
-
-    def _log_artifacts(
-        self, run_id, table, contexts, examples, truths=None, title="", spare=()
-    ) -> None:
-        """The per-object table, the contexts, and for the pictured objects their completed
-        clouds (``completions/*.ply``) and pictures (``pictures/<object>.png``, drawn from the
-        arrays kept beside it as ``.npz``: context, completion, ground truth, spread); when
-        pictured objects failed, ``spare`` successes fill the ``.ply`` examples up."""
-        import trimesh
-
-        from shapebench.evaluation.pictures import file_stem, picture_arrays, picture_png
-
-        with tempfile.TemporaryDirectory() as tmp:
-            tmpdir = Path(tmp)
-            table.to_csv(tmpdir / "per_object.csv", index=False)
-            if contexts:
-                arrays = {
-                    "objects": np.array([c.ref.id for c in contexts]),
-                    "points": np.stack([c.points for c in contexts]),
-                }
-                if all(c.normals is not None for c in contexts):  # given to the method
-                    arrays["normals"] = np.stack([c.normals for c in contexts])
-                np.savez_compressed(tmpdir / "contexts.npz", **arrays)
-            self.tracker.log_artifacts(run_id, tmpdir)
-            if examples:
-                pic_dir = tmpdir / "pictures"
-                pic_dir.mkdir()
-                start = time.perf_counter()
-                try:
-                    for ctx, completion in examples:
-                        obj = ctx.ref.id
-                        arrays = picture_arrays(
-                            ctx.points,
-                            completion.points,
-                            (truths or {}).get(obj),
-                            completion.cache.get("spread"),
-                        )
-                        np.savez_compressed(pic_dir / f"{file_stem(obj)}.npz", **arrays)
-                        png = picture_png(arrays, f"{title}: {obj}" if title else obj)
-                        (pic_dir / f"{file_stem(obj)}.png").write_bytes(png)
-                except Exception as exc:  # a picture is a view of the results, not one of them
-                    self.echo(
-                        f"  warning: could not draw the pictures of this cell "
-                        f"({type(exc).__name__}: {exc})"
-                    )
-                self.tracker.log_artifacts(run_id, pic_dir, "pictures")
-                seconds = time.perf_counter() - start
-                self.tracker.log_metrics(run_id, {"pictures_seconds": seconds})
-            if examples or spare:
-                ex_dir = tmpdir / "completions"
-                ex_dir.mkdir()
-                for ctx, completion in [*examples, *spare]:
-                    obj = ctx.ref.id
-                    stem = obj.replace("/", "__")
-                    trimesh.PointCloud(completion.points).export(ex_dir / f"{stem}.ply")
-                    for j, sample in enumerate(completion.samples or []):
-                        trimesh.PointCloud(sample).export(ex_dir / f"{stem}.sample{j}.ply")
-                    if "spread" in completion.cache:
-                        np.savez_compressed(
-                            ex_dir / f"{stem}.spread.npz",
-                            points=completion.points,
-                            spread=completion.cache["spread"],
-                        )
-                self.tracker.log_artifacts(run_id, ex_dir, "completions")

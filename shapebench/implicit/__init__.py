@@ -1,5 +1,8 @@
-"""Neural implicit surfaces shared by the IGR, DeepSDF and MSC plugins (imports torch).
+"""Neural implicit surfaces shared by the IGR, DeepSDF, MSC (and MSC-hier), OccNet and ConvONet
+plugins.
 
-Only method modules import this package, and only when a method is used: plugin registration
-never pulls torch in.
+The method bases and their options (``method_base``, ``occupancy``, ``options``, ``recipes``)
+import no torch: the method classes import them at registration time. The rest (networks,
+losses, the occupancy LightningModule base, completion) imports torch, and only a method that
+trains or completes imports it.
 """

@@ -1,5 +1,7 @@
-"""The base of the implicit-surface methods (IGR, DeepSDF, MSC, OccNet): :class:`ImplicitMethod`,
-a :class:`~shapebench.train.lightning_method.LightningMethod` whose codes define a surface.
+"""The base of the implicit-surface methods (IGR, DeepSDF, MSC, MSC-hier, and through
+:class:`~shapebench.implicit.occupancy.OccupancyMethod` OccNet and ConvONet):
+:class:`ImplicitMethod`, a :class:`~shapebench.train.lightning_method.LightningMethod` whose codes
+define a surface.
 
 :class:`LightningMethod` itself moved to :mod:`shapebench.train.lightning_method` (PCN, an
 explicit method, uses it too); importing it from here still works until shapebench 0.3, with a

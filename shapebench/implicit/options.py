@@ -1,6 +1,9 @@
 """Options the implicit methods share: fields whose meaning must be the same in every method
 (the recipe, the test-time optimiser, the largest-component filter; see
-:mod:`shapebench.implicit.recipes`) and the options of IGR's decoder, which MSC uses too.
+:mod:`shapebench.implicit.recipes`), the options every auto-decoder shares
+(:class:`AutoDecoderOptions`: DeepSDF, and IGR and MSC through IGR's decoder,
+:class:`IGRDecoderOptions`), and their tiny options for ``shapebench check``
+(:func:`auto_decoder_check_options`).
 
 No torch here: the method classes import it at registration time.
 """
@@ -48,8 +51,15 @@ def largest_component_option() -> Any:
 
 
 @dataclass(frozen=True)
-class IGRDecoderOptions:
-    """The options of IGR's decoder and training losses (IGR itself, and MSC which uses them)."""
+class AutoDecoderOptions:
+    """The options of a method that decodes a latent code into an SDF with an MLP, trains the
+    decoder for ``epochs`` (or ``steps``) with a learning rate halved on a schedule, and meshes the
+    codes it finds at completion, optimising them on the context with the shared test-time
+    optimiser (DeepSDF; IGR and MSC through :class:`IGRDecoderOptions`).
+
+    A method adds its training options and ``lr`` (its recipe says the default), and redefines
+    ``opt_lr`` to name its recipes' values.
+    """
 
     recipe: str = recipe_option()
     latent_dim: int = option(256, "latent code size")
@@ -58,18 +68,16 @@ class IGRDecoderOptions:
     epochs: int = option(5000, "training epochs (paper: 5000)")
     steps: int = steps_option()
     batch_shapes: int = option(32, "objects per batch (paper: 32)")
-    surface_points: int = option(16384, "surface points per object and step (paper: 16384)")
-    lr: float | None = option(None, "decoder learning rate [paper 1e-4, official 5e-3]")
     lr_halve_every: int = option(500, "epochs between lr halvings")
     lr_halve_steps: int | None = option(
         None, "optimiser steps between lr halvings, instead of epochs (0: never halve)"
     )
-    eikonal_weight: float | None = option(None, "Eikonal weight lambda [paper 1.0, official 0.1]")
-    normal_weight: float = option(1.0, "normal term weight tau")
-    offsurface: str | None = option(
-        None,
-        "Eikonal samples [paper: 5k surface points + N(0, 0.04); official: N(0, 0.01^2) per "
-        "point + N/8 uniform in [-1.8, 1.8]^3]",
+    # The test-time optimiser, shared by every auto-decoder (shapebench.implicit.recipes).
+    opt_recipe: str | None = opt_recipe_option()
+    opt_steps: int | None = opt_steps_option()
+    opt_scale_by_error: bool | None = opt_scale_option()
+    opt_lr: float | None = completion_option(
+        None, "latent optimisation step [paper: the decoder's lr x error_0, official 5e-3]"
     )
     mesh_resolution: int = completion_option(
         256, "marching-cubes grid points per axis (paper: 256)"
@@ -78,3 +86,34 @@ class IGRDecoderOptions:
         False, "evaluate the decoder in bfloat16 while meshing (faster on CPU)"
     )
     largest_component: bool | None = largest_component_option()
+
+
+@dataclass(frozen=True)
+class IGRDecoderOptions(AutoDecoderOptions):
+    """The options of IGR's decoder and training losses (IGR itself, and MSC which uses them)."""
+
+    surface_points: int = option(16384, "surface points per object and step (paper: 16384)")
+    lr: float | None = option(None, "decoder learning rate [paper 1e-4, official 5e-3]")
+    eikonal_weight: float | None = option(None, "Eikonal weight lambda [paper 1.0, official 0.1]")
+    normal_weight: float = option(1.0, "normal term weight tau")
+    offsurface: str | None = option(
+        None,
+        "Eikonal samples [paper: 5k surface points + N(0, 0.04); official: N(0, 0.01^2) per "
+        "point + N/8 uniform in [-1.8, 1.8]^3]",
+    )
+
+
+def auto_decoder_check_options(**more: Any) -> dict[str, Any]:
+    """Tiny options of an auto-decoder for ``shapebench check`` (a method's ``check_options``):
+    a 2 x 32 decoder with 8-d codes, one epoch of batches of 4, 32^3 meshes and 5 test-time
+    steps, with ``more`` added or overriding."""
+    return {
+        "latent_dim": 8,
+        "width": 32,
+        "depth": 2,
+        "epochs": 1,
+        "batch_shapes": 4,
+        "mesh_resolution": 32,
+        "opt_steps": 5,
+        **more,
+    }

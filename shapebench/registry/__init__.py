@@ -1,15 +1,17 @@
 """Finding and configuring plugins: entry-point discovery (:mod:`~shapebench.registry.discovery`),
 names and overrides to instances (:mod:`~shapebench.registry.resolve`), a leaderboard row's
-identity (:mod:`~shapebench.registry.variant`), the code digest in every key
-(:mod:`~shapebench.registry.code_digest`), and the plugin checks (:mod:`~shapebench.registry.check`,
-:mod:`~shapebench.registry.testing`). Imports :mod:`shapebench.api` and nothing above it.
+identity (:mod:`~shapebench.registry.variant`) and the code digest in every key
+(:mod:`~shapebench.registry.code_digest`). Imports :mod:`shapebench.api` and nothing above it.
+The plugin checks that were here (``check``, ``testing``) are :mod:`shapebench.conformance` now;
+their old paths still import, with a warning (``shapebench/_moved.py``).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-#: The modules of this room: the import system asks for them here before it imports them.
+#: The modules of this room, and those that moved out of it (``check`` and ``testing``, answered
+#: by shapebench/_moved.py): the import system asks for them here before it imports them.
 _MODULES = frozenset({"check", "code_digest", "discovery", "resolve", "testing", "variant"})
 
 

@@ -18,7 +18,7 @@ from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
 from shapebench.store import records as rec
 from shapebench.store.records import CELL_KIND, PARENT_KIND, TRAINING_KIND, CellRecord
-from shapebench.store.tracking import run_url
+from shapebench.store.urls import run_url
 
 KINDS = (CELL_KIND, PARENT_KIND, TRAINING_KIND)
 STATUSES = ("FINISHED", "RUNNING", "FAILED", "KILLED")

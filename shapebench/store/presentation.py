@@ -2,7 +2,7 @@
 
 The runner computes cells; everything that makes them legible in the UI happens here, from plain
 data: a :class:`RunHeading` says whose runs these are, and a finished cell is anything with the
-attributes of :class:`CellOutcome` (:class:`shapebench.evaluation.runner.CellResult` is one).
+attributes of :class:`CellOutcome` (:class:`shapebench.evaluation.results.CellResult` is one).
 
 * A **parent run** per method variant and split holds the metrics of its cells with
   ``step = context size``, so the chart view draws one line per variant; its colour is the one

@@ -18,7 +18,6 @@ MLflow >= 3.13 refuses the implicit ``./mlruns`` file store.
 from __future__ import annotations
 
 import contextlib
-import functools
 import json
 import os
 import urllib.error
@@ -31,6 +30,8 @@ from typing import Any
 from shapebench.api.errors import TrackingError
 from shapebench.config import Settings
 from shapebench.store import records as rec
+from shapebench.store.provenance import run_context_tags
+from shapebench.store.urls import VIEW_KEY, view_state
 
 
 def experiment_name(dataset: str, split: str) -> str:
@@ -46,9 +47,6 @@ def training_experiment_name(dataset: str) -> str:
 
 #: Experiment names that held trainings in older stores (never a split of the leaderboards).
 LEGACY_TRAINING_SUFFIX = "-train"
-
-#: shapebench's view of an evaluation experiment: the metric columns shown in the runs table.
-VIEW_KEY = "shapebench"
 
 
 def check_reachable(uri: str, timeout: float = 5.0) -> None:
@@ -127,7 +125,8 @@ class Tracker:
     def describe_experiment(self, exp_id: str, note: str, metrics: Sequence[str] = ()) -> None:
         """The experiment's description (``mlflow.note.content``, shown above its runs) and,
         given the metrics of its cells, shapebench's view of it: the runs table with those
-        metrics as columns (see :func:`view_state`), opened by :func:`experiment_url`."""
+        metrics as columns (see :func:`~shapebench.store.urls.view_state`), opened by
+        :func:`~shapebench.store.urls.experiment_url`."""
         tags = {rec.NOTE_TAG: note}
         if metrics:
             tags[rec.VIEW_TAG_PREFIX + VIEW_KEY] = json.dumps(view_state(metrics))
@@ -305,170 +304,6 @@ class Tracker:
 
 
 EXPERIMENT_KIND = "custom_model_development"
-
-
-#: The chart section shapebench's view opens with (before MLflow's own "Model metrics").
-CHART_SECTION = "shapebench-context"
-
-
-def view_state(metrics: list[str]) -> dict[str, Any]:
-    """The MLflow UI's view state for an experiment (the JSON its "Share" button stores): the
-    runs table shows these metrics (and the dataset) as columns instead of hiding every metric
-    behind "Show more columns", and the chart view opens on a line chart per metric against
-    the step, which is the context size on parent runs (log axis, as the paper's plots)."""
-    columns = [f"metrics.`{m}`" for m in metrics] + ["attributes.`Dataset`"]
-    charts = [
-        {
-            "type": "LINE",
-            "uuid": f"shapebench-{i}",
-            "metricSectionId": CHART_SECTION,
-            "isGenerated": False,
-            "deleted": False,
-            "runsCountToCompare": 10,
-            "displayName": f"{metric} against context size",
-            "metricKey": metric,
-            "selectedMetricKeys": [metric],
-            "lineSmoothness": 0,
-            "xAxisKey": "step",
-            "xAxisScaleType": "log",
-            "scaleType": "linear",
-            "selectedXAxisMetricKey": "",
-            "displayPoints": True,
-            "yAxisKey": "metric",
-            "yAxisExpressions": [],
-            "ignoreOutliers": False,
-            "useGlobalXaxisKey": False,
-            "useGlobalLineSmoothing": False,
-            "range": {"xMin": None, "xMax": None, "yMin": None, "yMax": None},
-        }
-        for i, metric in enumerate(metrics)
-    ]
-    section = {
-        "uuid": CHART_SECTION,
-        "name": "Against context size (step = context points)",
-        "display": True,
-        "isReordered": False,
-        "deleted": False,
-        "isGenerated": False,
-    }
-    return {"selectedColumns": columns, "compareRunCharts": charts, "compareRunSections": [section]}
-
-
-def experiment_url(base: str, exp_id: str, charts: bool = False, view: bool = True) -> str:
-    """The link to an experiment's runs page in the MLflow UI at ``base`` (``#/experiments/<id>
-    /runs``), opening shapebench's view of it and, with ``charts``, its chart view."""
-    query = [f"viewStateShareKey={VIEW_KEY}"] if view else []
-    if charts:
-        query.append("compareRunsMode=CHART")
-    return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs" + (
-        "?" + "&".join(query) if query else ""
-    )
-
-
-def run_url(base: str, exp_id: str, run_id: str) -> str:
-    """The link to one run's page in the MLflow UI at ``base``."""
-    return f"{base.rstrip('/')}/#/experiments/{exp_id}/runs/{run_id}"
-
-
-def run_context_tags() -> dict[str, str]:
-    """MLflow's standard tags and this process's provenance, on every run shapebench starts:
-    the torch thread count too once torch is loaded (it is set per worker and decides whether
-    two computations of a cell agree bitwise or to the key's tolerance)."""
-    import sys
-
-    tags = dict(_process_tags())
-    torch = sys.modules.get("torch")
-    if torch is not None and hasattr(torch, "get_num_threads"):
-        tags[rec.HOST_TORCH_THREADS_TAG] = str(torch.get_num_threads())
-    return tags
-
-
-@functools.lru_cache(maxsize=1)
-def _process_tags() -> dict[str, str]:
-    """The tags of :func:`run_context_tags` that cannot change while the process runs."""
-    import getpass
-    import platform
-    import sys
-
-    from shapebench import __version__
-    from shapebench.store.provenance import git_commit
-
-    commit = git_commit()
-    tags = {
-        rec.USER_TAG: _safe(getpass.getuser),
-        rec.SOURCE_TYPE_TAG: "LOCAL",
-        rec.SOURCE_NAME_TAG: " ".join(["shapebench", *sys.argv[1:]])[:500],
-        rec.SHAPEBENCH_VERSION_TAG: __version__,
-        rec.VERSIONS_PREFIX + "python": platform.python_version(),
-        rec.HOST_PLATFORM_TAG: platform.platform(),
-        rec.HOST_CPUS_TAG: str(os.cpu_count() or 0),
-    }
-    if commit != "unknown":
-        tags[rec.GIT_COMMIT_TAG] = commit.removesuffix("-dirty")
-        tags[rec.GIT_DIRTY_TAG] = str(commit.endswith("-dirty"))
-    # Versions from the installed metadata: importing torch here would cost seconds per command.
-    for dist in ("mlflow", "numpy", "torch", "pytorch-lightning", "trimesh"):
-        version = _dist_version(dist)
-        if version:
-            tags[rec.VERSIONS_PREFIX + dist] = version
-    cpu = _cpu_model()
-    if cpu:
-        tags[rec.HOST_CPU_TAG] = cpu
-    memory = _memory_gb()
-    if memory:
-        tags[rec.HOST_MEMORY_TAG] = f"{memory:.0f}"
-    gpus = _gpu_names()
-    if gpus:
-        tags[rec.HOST_GPUS_TAG] = gpus
-    return tags
-
-
-def _safe(fn: Any) -> str:
-    try:
-        return str(fn())
-    except Exception:  # no user name in a container without passwd entry: not worth failing
-        return "unknown"
-
-
-def _dist_version(dist: str) -> str:
-    from importlib import metadata
-
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return ""
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    import platform
-
-    return platform.processor()
-
-
-def _memory_gb() -> float:
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    except (ValueError, OSError, AttributeError):
-        return 0.0
-
-
-def _gpu_names() -> str:
-    """The GPUs of this machine, from the NVIDIA driver's files (no CUDA initialisation)."""
-    names = []
-    for info in sorted(Path("/proc/driver/nvidia/gpus").glob("*/information")):
-        try:
-            for line in info.read_text().splitlines():
-                if line.startswith("Model:"):
-                    names.append(line.split(":", 1)[1].strip())
-        except OSError:
-            continue
-    return ", ".join(names)
 
 
 def _retire_default_experiment(client: Any) -> None:

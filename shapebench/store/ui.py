@@ -3,7 +3,7 @@
 The port is checked before anything is printed: MLflow's server would otherwise print its
 banner, fail inside uvicorn with a traceback, and leave the caller with a URL that shows
 someone else's server. The links open each experiment's runs page in shapebench's view (the
-primary metric as a column, see :func:`shapebench.store.tracking.view_state`), and the chart view
+primary metric as a column, see :func:`shapebench.store.urls.view_state`), and the chart view
 where
 each method variant is one line of Chamfer distance against context size.
 """
@@ -25,7 +25,7 @@ from types import FrameType
 from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
 from shapebench.store.records import VIEW_TAG_PREFIX
-from shapebench.store.tracking import VIEW_KEY, experiment_url
+from shapebench.store.urls import VIEW_KEY, experiment_url
 
 
 def check_port(host: str, port: int) -> None:

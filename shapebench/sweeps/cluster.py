@@ -1,4 +1,7 @@
-"""Running a sweep as cluster jobs through submitit (``--launcher slurm``, ``submitit-local``).
+"""Running a sweep as cluster jobs through submitit (``--launcher slurm``, ``submitit-local``):
+the login side, which submits the jobs and waits for them. What a job runs on its node is in
+:mod:`shapebench.sweeps.jobs`, where a submitted sweep stands (``--status``) in
+:mod:`shapebench.sweeps.status`.
 
 The sweep is planned first (:mod:`shapebench.sweeps.plan`): only the cells that have no finished
 run, and the trainings they need, are submitted, so resubmitting an interrupted sweep submits
@@ -13,8 +16,8 @@ exactly what is missing.
   training's job (``afterok``, and SLURM cancels the array if the training fails).
 - **Pre-emption**: SLURM sends SIGUSR1 ``signal_delay_s`` before a job's end (submitit's
   ``--signal``). A training stops after its optimiser step, writes ``last.ckpt`` and requeues
-  its job (:func:`requeue_after`), which resumes from it; a cell job is requeued by submitit
-  and recomputes its unfinished cells.
+  its job (:func:`shapebench.sweeps.jobs.requeue_after`), which resumes from it; a cell job is
+  requeued by submitit and recomputes its unfinished cells.
 - **Tracking**: jobs on many nodes must not share one SQLite file, so a slurm sweep needs an
   MLflow server (``--tracking-uri http://...``) or ``tracking: per-job``: every job logs to
   ``<workspace>/stores/job-<id>.db``, and ``sweep --status``, ``--wait`` and ``shapebench merge``
@@ -23,6 +26,9 @@ exactly what is missing.
 ``submitit-local`` runs the same jobs as processes on this machine (submitit's local executor),
 without dependencies (trainings are waited for before their cells are submitted): a way to
 check a cluster setup, and how the suite tests this module.
+
+The job classes are imported here from :mod:`~shapebench.sweeps.jobs`: a job pickled when they
+lived in this module names them here, and still resolves when it is requeued after an upgrade.
 """
 
 from __future__ import annotations
@@ -30,8 +36,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -39,12 +43,11 @@ from pathlib import Path
 from typing import Any
 
 from shapebench.api.errors import ConfigError, ShapebenchError
-from shapebench.config import Settings, make_settings
-from shapebench.sweeps.plan import CellTask, SweepPlan, TrainingTask
+from shapebench.config import Settings
+from shapebench.sweeps.jobs import PREEMPT_SIGNAL, CellsJob, JobContext, PrepareJob, TrainingJob
+from shapebench.sweeps.plan import CellTask, SweepPlan
+from shapebench.sweeps.status import job_state, slurm_queue
 
-#: SLURM's pre-emption warning (``--signal=USR1@90``): also what Lightning listens to. submitit
-#: reads this variable when imported, in the submitting process and in every job.
-PREEMPT_SIGNAL = "USR1"
 CLUSTER_LAUNCHERS = ("slurm", "submitit-local")
 
 
@@ -126,181 +129,6 @@ def check_tracking(cfg: LauncherConfig, settings: Settings) -> None:
             "under the workspace's stores/, merged by 'sweep --status', '--wait' or "
             "'shapebench merge')",
         )
-
-
-# --------------------------------------------------------------------------------------- jobs
-
-
-@dataclass
-class JobContext:
-    """What every job needs to rebuild the sweep exactly as the submitting process saw it."""
-
-    sweep_file: str
-    profile: str | None
-    tracking_uri: str
-    cache_dir: str
-    workspace: str
-    trainer: dict[str, Any]
-    frame: str | None = None
-    context_normals: bool | None = None
-    per_job_store: bool = False
-    threads: int | None = None
-    #: ``shapebench sweep -m``: the method entries the submitting process kept (cells are
-    #: addressed by their index among them)
-    methods: tuple[str, ...] = ()
-    #: ``shapebench sweep --seeds``: the run seeds the submitting process kept.
-    seeds: tuple[int, ...] = ()
-    #: ``shapebench sweep -D``: dataset options over every dataset entry's.
-    dataset_options: dict[str, Any] = field(default_factory=dict)
-
-    def settings(self) -> Settings:
-        settings = make_settings(self.tracking_uri, self.cache_dir, self.profile, self.workspace)
-        if self.per_job_store:
-            store = Path(self.workspace) / "stores" / f"job-{job_id()}.db"
-            store.parent.mkdir(parents=True, exist_ok=True)
-            settings = replace(settings, tracking_uri=f"sqlite:///{store}")
-        return settings
-
-    def spec(self) -> Any:
-        from shapebench.api.protocol import Protocol
-        from shapebench.sweeps.spec import load_sweep, narrow_sweep
-
-        spec = narrow_sweep(
-            load_sweep(Path(self.sweep_file)), self.methods, self.seeds, self.dataset_options
-        )
-        if self.frame is not None or self.context_normals is not None:
-            spec = replace(
-                spec,
-                protocol=Protocol(
-                    context_normals=(
-                        spec.protocol.context_normals
-                        if self.context_normals is None
-                        else self.context_normals
-                    ),
-                    frame=self.frame or spec.protocol.frame,
-                ),
-            )
-        return spec
-
-    def trainer_for_seed(self, settings: Settings) -> Callable[[int], Any]:
-        from shapebench.train.training import trainer_options
-
-        return lambda seed: trainer_options(settings, seed, **self.trainer)
-
-    def start(self) -> None:
-        if self.threads:
-            from shapebench.sweeps.launchers import use_threads
-
-            use_threads(self.threads)
-
-
-def job_id() -> str:
-    """This job's id: SLURM's (``<array>_<task>`` in an array), submitit's local one, or the pid."""
-    if os.environ.get("SLURM_ARRAY_JOB_ID"):
-        return f"{os.environ['SLURM_ARRAY_JOB_ID']}_{os.environ.get('SLURM_ARRAY_TASK_ID', 0)}"
-    return (
-        os.environ.get("SLURM_JOB_ID")
-        or os.environ.get("SUBMITIT_LOCAL_JOB_ID")
-        or str(os.getpid())
-    )
-
-
-class CellsJob:
-    """A job computing some cells of the sweep, one after another (an array task)."""
-
-    def __init__(self, ctx: JobContext, cells: list[CellTask]) -> None:
-        self.ctx = ctx
-        self.cells = cells
-
-    def __call__(self) -> list[str]:
-        from shapebench.evaluation.orchestrate import evaluate
-        from shapebench.store.tracking import Tracker
-        from shapebench.sweeps.spec import request, sweep_methods
-
-        self.ctx.start()
-        settings = self.ctx.settings()
-        spec = self.ctx.spec()
-        methods = sweep_methods(spec)
-        tracker = Tracker(settings)
-        done, failed = [], []
-        for cell in self.cells:
-            req = request(
-                spec,
-                methods[cell.method_index],
-                spec.datasets[cell.dataset_index],
-                quiet=True,
-                splits=[cell.split],
-                contexts=[cell.size],
-                seeds=[cell.seed],
-            )
-            print(f"[shapebench] {cell.name} (cell key {cell.key})", flush=True)
-            try:
-                outcome = evaluate(req, settings, self.ctx.trainer_for_seed(settings), tracker)
-            except ShapebenchError as exc:  # the job's other cells go on
-                failed.append(f"{cell.name}: {exc.message}")
-                print(f"[shapebench] failed: {exc.message}", file=sys.stderr, flush=True)
-                continue
-            done += [c.run_id for c in outcome.cells]
-        if failed:
-            raise ShapebenchError(
-                f"{len(failed)} of {len(self.cells)} cells failed: " + "; ".join(failed)
-            )
-        return done
-
-    def checkpoint(self) -> Any:
-        """Pre-empted: submitit requeues the same cells; finished ones are skipped then."""
-        import submitit
-
-        return submitit.helpers.DelayedSubmission(CellsJob(self.ctx, self.cells))
-
-
-class TrainingJob:
-    """A training, run by every rank ``srun`` starts (Lightning reads the ranks from SLURM)."""
-
-    def __init__(self, ctx: JobContext, task: TrainingTask) -> None:
-        self.ctx = ctx
-        self.task = task
-
-    def __call__(self) -> str:
-        from shapebench.evaluation.orchestrate import resolve_request
-        from shapebench.sweeps.spec import request, sweep_methods
-        from shapebench.train.lightning_fit import TrainingInterrupted
-        from shapebench.train.training import apply_trainer, checkpoint_key, train_here
-
-        self.ctx.start()
-        settings = self.ctx.settings()
-        spec = self.ctx.spec()
-        entry = sweep_methods(spec)[self.task.method_index]
-        dataset_entry = spec.datasets[self.task.dataset_index]
-        resolved = resolve_request(request(spec, entry, dataset_entry, quiet=True), settings)
-        trainer = self.ctx.trainer_for_seed(settings)(self.task.seed)
-        key = checkpoint_key(apply_trainer(resolved.method, trainer), resolved.dataset, trainer)
-        if key != self.task.key:
-            raise ShapebenchError(
-                f"{self.task.name}: the job computes checkpoint key {key}, the sweep was planned "
-                f"with {self.task.key}: the code, the sweep file or the data changed since "
-                "submission",
-                "resubmit the sweep",
-            )
-        try:
-            record = train_here(resolved.method, resolved.dataset, trainer, settings, quiet=True)
-        except TrainingInterrupted as exc:
-            if exc.signal_name == f"SIG{PREEMPT_SIGNAL}":
-                requeue_after(exc)
-            raise
-        return str(record["path"])
-
-
-def requeue_after(exc: BaseException) -> None:
-    """Pre-empted: rank 0 requeues this job (it resumes from the checkpoint just written), and
-    the job ends without a result, as submitit's own requeue does."""
-    rank = os.environ.get("SLURM_PROCID", "0")
-    job = os.environ.get("SLURM_JOB_ID")
-    if job and rank == "0":
-        why = getattr(exc, "message", str(exc))
-        print(f"[shapebench] pre-empted ({why}); requeueing job {job}", file=sys.stderr, flush=True)
-        subprocess.run(["scontrol", "requeue", job], check=False, timeout=60)
-    raise SystemExit(-1)
 
 
 # --------------------------------------------------------------------------------- submission
@@ -481,7 +309,7 @@ def wait_for(jobs: list[Any], echo: Callable[[str], None], poll: float = 2.0) ->
     while pending:
         # Local jobs answer done() themselves: ask SLURM only when some job is SLURM's.
         local = all(type(job).__name__ == "LocalJob" for job in pending)
-        queue = {} if local else _queue()
+        queue = {} if local else slurm_queue()
         still = []
         for job in pending:
             if type(job).__name__ == "LocalJob":
@@ -502,7 +330,7 @@ def wait_for(jobs: list[Any], echo: Callable[[str], None], poll: float = 2.0) ->
 
 
 def _in_queue(jid: str, queue: dict[str, str]) -> bool:
-    return _job_state({"job_id": jid, "launcher": "slurm"}, queue) != "ended"
+    return job_state({"job_id": jid, "launcher": "slurm"}, queue) != "ended"
 
 
 def _job_error(job: Any) -> str | None:
@@ -531,135 +359,7 @@ def merge_job_stores(settings: Settings, echo: Callable[[str], None]) -> None:
         echo(f"merged {len(stores)} per-job stores: {report.line()}")
 
 
-# -------------------------------------------------------------------------------------- status
-
-
-def _queue() -> dict[str, str]:
-    """SLURM's queue (job id -> state), empty where there is no ``squeue``."""
-    try:
-        out = subprocess.run(
-            ["squeue", "-h", "-o", "%i %T"], capture_output=True, text=True, timeout=30, check=True
-        ).stdout
-    except (OSError, subprocess.SubprocessError):
-        return {}
-    states = {}
-    for line in out.splitlines():
-        if " " in line:
-            jid, state = line.split(None, 1)
-            states[jid] = state.lower()
-    return states
-
-
-def _job_state(job: dict[str, Any], queue: dict[str, str]) -> str:
-    jid = job["job_id"]
-    if job["launcher"] == "submitit-local":
-        try:
-            os.kill(int(jid), 0)
-            return "running"
-        except (ValueError, OSError):
-            return "ended"
-    if jid in queue:
-        return queue[jid]
-    base, _, task = jid.partition("_")
-    for qid, state in queue.items():  # a pending array shows as 123_[4-7%2]
-        if qid.startswith(f"{base}_[") and task:
-            return state
-    return "ended"
-
-
-@dataclass
-class CellStatus:
-    cell: CellTask
-    state: str  # finished, running, queued, failed, not submitted
-    job: dict[str, Any] | None = None
-
-
-def sweep_status(
-    plan: SweepPlan, settings: Settings, manifest: list[dict[str, Any]]
-) -> list[CellStatus]:
-    """Each cell's state from the store (finished), its claim lock (running), and the last job
-    it was submitted in (queued, or failed when that job ended without finishing it)."""
-    from shapebench.store.locks import try_lock
-    from shapebench.store.tracking import cell_lock_path
-
-    last_job: dict[str, dict[str, Any]] = {}
-    for job in manifest:
-        for key in job["keys"]:
-            last_job[key] = job
-    queue = _queue()
-    out = []
-    for cell in plan.cells:
-        job = last_job.get(cell.key)
-        if cell.key in plan.finished:
-            out.append(CellStatus(cell, "finished", job))
-            continue
-        lock = try_lock(cell_lock_path(settings, cell.key))
-        if lock is None:
-            out.append(CellStatus(cell, "running", job))
-            continue
-        lock.release()
-        if job is None:
-            out.append(CellStatus(cell, "not submitted"))
-            continue
-        state = _job_state(job, queue)
-        out.append(CellStatus(cell, "failed" if state == "ended" else state, job))
-    return out
-
-
-def print_status(statuses: list[CellStatus], plan: SweepPlan, echo: Callable[[str], None]) -> None:
-    counts: dict[str, int] = {}
-    for s in statuses:
-        counts[s.state] = counts.get(s.state, 0) + 1
-    order = ["finished", "running", "pending", "queued", "failed", "not submitted"]
-    shown = [f"{counts[k]} {k}" for k in order if k in counts]
-    shown += [f"{v} {k}" for k, v in counts.items() if k not in order]
-    echo(f"{len(statuses)} cells: " + ", ".join(shown))
-    to_train = [t for t in plan.trainings if not t.shipped]
-    shipped = [t for t in plan.trainings if t.shipped]
-    if to_train:
-        echo(f"{len(to_train)} trainings missing: " + ", ".join(t.name for t in to_train))
-    if shipped:
-        echo(
-            f"{len(shipped)} trainings served by shipped reference weights (installed when their "
-            "cells run; --retrain trains them instead): " + ", ".join(t.name for t in shipped)
-        )
-    for s in statuses:
-        if s.state == "failed" and s.job is not None:
-            echo(f"  failed: {s.cell.name}: job {s.job['job_id']}, log {s.job['stderr']}")
-        elif s.state not in ("finished", "not submitted"):
-            jid = s.job["job_id"] if s.job else "-"
-            echo(f"  {s.state}: {s.cell.name} (job {jid})")
-    for error in plan.errors:
-        echo(f"  cannot run: {error}")
-
-
 # ------------------------------------------------------------------------------------- prepare
-
-
-class PrepareJob:
-    """One array task of ``prepare --launcher slurm``: every ``count``-th object from ``index``."""
-
-    def __init__(self, req: Any, settings: Settings, index: int, count: int, jobs: int) -> None:
-        self.req = req
-        self.settings = settings
-        self.shard = (index, count)
-        self.jobs = jobs
-
-    def __call__(self) -> list[str]:
-        from shapebench.evaluation.prepare import prepare_request
-
-        reports = prepare_request(self.req, self.settings, self.jobs, True, self.shard)
-        lines = []
-        for report in reports:
-            lines.append(report.summary())
-            lines += [f"  failed: {f.ref.id}: {f.reason}" for f in report.failures]
-        return lines
-
-    def checkpoint(self) -> Any:
-        """Pre-empted: requeued; the objects already cached are read back, not rebuilt."""
-        import submitit
-
-        return submitit.helpers.DelayedSubmission(self)
 
 
 def prepare_on_cluster(

@@ -2,7 +2,7 @@
 trainings the missing ones need.
 
 A cluster launcher submits only this (:mod:`shapebench.sweeps.cluster`): cells are identified by the
-same keys the runner skips finished cells by (:func:`shapebench.evaluation.runner.planned_cells`),
+same keys the runner skips finished cells by (:func:`shapebench.evaluation.plan.planned_cells`),
 and a
 training by its checkpoint key, so resubmitting an interrupted sweep submits exactly what is
 missing. ``shapebench sweep FILE --status`` prints the same plan.
@@ -17,10 +17,11 @@ from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import TrainerOptions
 from shapebench.config import Settings
 from shapebench.evaluation.orchestrate import resolve_request, seed_plans
-from shapebench.evaluation.runner import Runner, planned_cells
+from shapebench.evaluation.plan import planned_cells
+from shapebench.evaluation.runner import Runner
 from shapebench.store.tracking import Tracker, experiment_name
 from shapebench.sweeps.spec import SweepSpec, pairs, request, sweep_methods
-from shapebench.train.training import checkpoint_dir, find_reference, read_done
+from shapebench.train.training import read_done
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,8 @@ def plan_sweep(
             out.errors.append(f"{m.name} on {ds.name}: {exc.message}")
             continue
         for sp in seed_plans(req, resolved, settings, trainer_for_seed):
-            training = sp.checkpoint.get("key") if "training" in sp.checkpoint else None
+            ticket = sp.ticket  # the seed's training, planned once by seed_plans
+            training = ticket.key if ticket is not None else None
             needed = False  # some cell of this seed is missing
             for split in sp.plan.splits:
                 exp_id = tracker.experiment_id(experiment_name(ds.name, split), create=False)
@@ -112,9 +114,9 @@ def plan_sweep(
                         out.finished[key] = done.run_id
                     else:
                         needed = True
-            if training is None:
+            if ticket is None:
                 continue
-            if read_done(checkpoint_dir(settings, sp.method, training)) is not None:
+            if read_done(ticket.workdir) is not None:
                 out.trained.add(training)
             elif needed:
                 trainings.setdefault(
@@ -126,7 +128,7 @@ def plan_sweep(
                         training,
                         sp.variant.label,
                         ds.name,
-                        shipped=find_reference(sp.method, training) is not None,
+                        shipped=ticket.reference is not None,
                     ),
                 )
     out.trainings = list(trainings.values())

@@ -1,7 +1,8 @@
 """Launching a sweep: :class:`SweepLaunch` is one ``shapebench sweep`` (or ``run --launcher``)
 as plain data; :func:`start_sweep` submits it as cluster jobs or runs its local worker
 processes, :func:`run_inline` computes what is left in this process, :func:`show_status` reports
-(the jobs themselves are in :mod:`shapebench.sweeps.cluster`).
+(submitting the jobs is :mod:`shapebench.sweeps.cluster`, the jobs themselves
+:mod:`shapebench.sweeps.jobs`, their status :mod:`shapebench.sweeps.status`).
 """
 
 from __future__ import annotations
@@ -16,21 +17,20 @@ import click
 from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
 from shapebench.sweeps.cluster import (
-    JobContext,
     check_tracking,
     launcher_config,
     manifest_path,
     merge_job_stores,
-    print_status,
     read_manifest,
     submit_plan,
-    sweep_status,
     wait_for,
     write_manifest,
 )
+from shapebench.sweeps.jobs import JobContext
 from shapebench.sweeps.launchers import run_local, threads_per_worker, use_threads
 from shapebench.sweeps.plan import plan_sweep
 from shapebench.sweeps.spec import SweepSpec, sweep_methods
+from shapebench.sweeps.status import print_status, sweep_status
 from shapebench.train.training import trainer_options
 
 #: Launchers that submit jobs through submitit.

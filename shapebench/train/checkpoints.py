@@ -15,6 +15,11 @@ A checkpoint trained by shapebench carries its checkpoint key (``fit_lightning``
 the checkpoint as ``checkpoint["shapebench"]["key"]``; older ones have it in ``done.json`` beside
 them): :func:`verify_checkpoint` refuses one trained for another configuration.
 
+A training resumes from ``last.ckpt`` (:data:`LAST`) in its private folder:
+:func:`resume_state` reads it once (a damaged one is deleted, one of another key refused),
+:func:`checkpoint_epochs` and :func:`describe_progress` say how far one got, and
+:func:`kept_message` what an interrupted training leaves to resume from.
+
 Damaged cache files (preprocessed arrays, context orders) are reported with
 :func:`warn_corrupt` and rebuilt by their owners.
 
@@ -44,6 +49,9 @@ STAMP = "shapebench"
 
 #: The file :func:`shapebench.train.training.train_here` writes beside a finished checkpoint.
 DONE_FILE = "done.json"
+
+#: The checkpoint a training resumes from, in its private folder.
+LAST = "last.ckpt"
 
 _ZIP_MAGIC = b"PK\x03\x04"
 
@@ -219,3 +227,63 @@ def load_module(module_cls: type, path: Path, device: Any = "cpu"):
     :func:`build_module`."""
     checkpoint = load_safely(path, map_location="cpu")
     return build_module(module_cls, checkpoint, Path(path)).to(device)
+
+
+# -- resuming a training ------------------------------------------------------------------------
+
+
+def epochs_of(state: dict[str, Any]) -> int:
+    """How many whole epochs the loaded checkpoint ``state`` holds (a mid-epoch one: those
+    before its epoch)."""
+    try:
+        return int(state["loops"]["fit_loop"]["epoch_progress"]["current"]["processed"])
+    except (KeyError, TypeError):
+        return int(state.get("epoch", -1)) + 1
+
+
+def checkpoint_epochs(path: Path) -> int | None:
+    """How many whole epochs the checkpoint at ``path`` holds (a mid-epoch one: those before
+    its epoch), or None if it cannot be read."""
+    import torch
+
+    try:
+        return epochs_of(torch.load(path, map_location="cpu", weights_only=True))
+    except Exception:
+        return None
+
+
+def describe_progress(state: dict[str, Any]) -> str:
+    """How far a loaded checkpoint got, for messages."""
+    return f"{epochs_of(state)} epochs done, optimiser step {int(state['global_step'])}"
+
+
+def resume_state(last: Path, key: str) -> dict[str, Any] | None:
+    """The checkpoint to resume from, read once, or None when there is none. A damaged one is
+    reported and deleted (training restarts from epoch 0); one stamped with another key is
+    refused, naming both."""
+    import warnings
+
+    if not last.exists():
+        return None
+    try:
+        state = load_safely(last)
+    except ShapebenchError as exc:
+        warnings.warn(f"{exc.message}; training from epoch 0", CorruptFileWarning, stacklevel=2)
+        last.unlink(missing_ok=True)
+        return None
+    if key_of(last, state) not in (None, key):
+        verify_checkpoint(last, key, state)  # raises, naming both keys
+    return state
+
+
+def kept_message(last: Path) -> str:
+    """What an interrupted training leaves to resume from, for its message."""
+    import torch
+
+    if not last.exists():
+        return "nothing was saved yet"
+    try:
+        state = torch.load(last, map_location="cpu", weights_only=True)
+    except Exception:
+        return f"{last} is unreadable"
+    return f"its checkpoint ({describe_progress(state)}) is kept at {last}"

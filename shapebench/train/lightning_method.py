@@ -21,7 +21,14 @@ from shapebench.api.types import Completion, Context, Supervision
 if TYPE_CHECKING:  # annotations only: the method classes are imported by `shapebench methods`,
     import torch
 
-    from shapebench.train.lightning_fit import ShapeDataModule
+    from shapebench.train.data import ShapeDataModule
+
+
+def completion_device() -> torch.device:
+    """Where completion runs: the GPU when there is one."""
+    import torch
+
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
 def stack_contexts(
@@ -55,10 +62,13 @@ class LightningMethod(Method):
     batch_size = 8
     #: ``"package.module:Class"`` of the method's LightningModule, imported on first use.
     module_path: ClassVar[str] = ""
-    #: The shared training loop and the modules' base change trained weights: their source is
-    #: part of the keys.
+    #: The shared training loop, its data pipeline, its seeding and the modules' base change
+    #: trained weights: their source is part of the keys. (The callbacks that save, stop and
+    #: print, the resume helpers and the summary change no weight and are left out.)
     code_modules: ClassVar[tuple[str, ...]] = (
         "shapebench.train.lightning_fit",
+        "shapebench.train.data",
+        "shapebench.train.seeding",
         "shapebench.train.lightning_module",
     )
 
@@ -98,7 +108,7 @@ class LightningMethod(Method):
     def data_module(self, ctx: TrainingContext) -> ShapeDataModule:
         """The training split as batches of ``batch_shapes`` objects holding
         :meth:`sample_sizes` samples, every draw seeded from the trainer seed."""
-        from shapebench.train.lightning_fit import ShapeDataModule
+        from shapebench.train.data import ShapeDataModule
 
         return ShapeDataModule(
             ctx.dataset,
@@ -115,7 +125,8 @@ class LightningMethod(Method):
         return self.Module(self.options, n_shapes)
 
     def fit(self, ctx: TrainingContext) -> Path:
-        from shapebench.train.lightning_fit import fit_lightning, seed_training
+        from shapebench.train.lightning_fit import fit_lightning
+        from shapebench.train.seeding import seed_training
 
         data = self.data_module(ctx)
         n_shapes = data.load_objects()
@@ -129,9 +140,8 @@ class LightningMethod(Method):
         it is read with ``weights_only=True`` after a checksum test: a damaged file or a pickled
         payload raises a :class:`~shapebench.api.errors.ShapebenchError` naming it."""
         from shapebench.train.checkpoints import load_module
-        from shapebench.train.lightning_fit import device
 
-        self.device = device()
+        self.device = completion_device()
         self.module = load_module(self.Module, Path(path), self.device)
         self.module.eval()
         for p in self.module.parameters():

@@ -1,7 +1,7 @@
 """Reference checkpoints: trainings shipped with shapebench, used instead of training locally.
 
 A trainable method's checkpoint is keyed by everything that changes its weights
-(:func:`shapebench.train.training.checkpoint_key`: options, code, training data, epochs, precision,
+(:func:`shapebench.train.ticket.checkpoint_key`: options, code, training data, epochs, precision,
 devices, seed). For the built-in synthetic benchmark at the default (standard) and quick profiles,
 shapebench ships the checkpoints its maintainers trained with ``scripts/reference_checkpoints.py``,
 one folder per key::

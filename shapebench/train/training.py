@@ -2,8 +2,9 @@
 
 Lightning's DDP supports one ``Trainer.fit`` per process (its subprocess launcher re-runs the
 command line for every rank), so ``shapebench run`` and ``sweep`` never call ``fit`` themselves:
-when a method trains and no checkpoint exists for its key (:func:`checkpoint_key`), they start
-``python -m shapebench train ...`` as a child process and wait for it. The checkpoint directory
+when a method trains and no checkpoint exists for its key (the key of its
+:class:`~shapebench.train.ticket.TrainingTicket`), they start ``python -m shapebench train ...``
+as a child process and wait for it. The checkpoint directory
 holds ``done.json`` once training finished; an interrupted training leaves its last epoch-end
 checkpoint there and the next training of that key resumes from it.
 
@@ -25,19 +26,16 @@ import time
 import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from shapebench.api.dataset import Dataset
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import TrainerOptions, TrainingContext
 from shapebench.config import Settings
-from shapebench.hashing import stable_hash
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.store.records import CHECKPOINT_KEY_TAG, training_tags
 from shapebench.store.tracking import Tracker, flatten, training_experiment_name
-
-if TYPE_CHECKING:
-    from shapebench.train.references import Reference
+from shapebench.train.ticket import TrainingTicket, apply_trainer, checkpoint_key, step_budget
 
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
 #: The pid of the process that started this training and waits for it (see watch_parent).
@@ -63,74 +61,6 @@ def trainer_options(settings: Settings, seed: int, **given: Any) -> TrainerOptio
 def profile_trainer(settings: Settings, seed: int) -> TrainerOptions:
     """The trainer settings a run gets with no command-line overrides."""
     return trainer_options(settings, seed)
-
-
-def world_size(trainer: TrainerOptions) -> int:
-    """How many processes train together (devices x nodes): with the per-device batch, it sets
-    the effective batch size, so it changes the trained weights."""
-    devices = str(trainer.devices).strip()
-    if devices.isdigit():
-        count = int(devices)
-    elif "," in devices or devices.startswith("["):
-        count = len([d for d in devices.strip("[]").split(",") if d.strip()])
-    elif trainer.accelerator == "cpu":
-        count = 1  # Lightning's "auto" devices on a CPU: one process
-    else:
-        import torch
-
-        count = max(torch.cuda.device_count(), 1) if torch.cuda.is_available() else 1
-    return max(count, 1) * max(int(trainer.num_nodes or 1), 1)
-
-
-def training_identity(method: ResolvedMethod, trainer: TrainerOptions) -> dict[str, Any]:
-    """The trainer settings that change the trained weights; the accelerator does not count
-    (a checkpoint trained on a GPU serves a CPU evaluation). The budget is the method's epochs
-    or, when it has a step budget, its optimiser steps (an epoch is 9 steps on 66 shapes and
-    3,750 on 30,000: a step budget costs the same at any training-set size)."""
-    identity: dict[str, Any] = {
-        "epochs": trainer.max_epochs or getattr(method.options, "epochs", None),
-        "precision": trainer.precision,
-        "world_size": world_size(trainer),
-        "seed": trainer.seed,
-    }
-    steps = step_budget(method, trainer)
-    if steps:
-        identity["steps"] = steps
-    return identity
-
-
-def step_budget(method: ResolvedMethod, trainer: TrainerOptions) -> int:
-    """The optimiser steps a training runs, or 0 when it runs its epochs: ``--max-steps``, else
-    the method's ``steps`` option unless ``--max-epochs`` asked for an epoch budget."""
-    if trainer.max_steps:
-        return int(trainer.max_steps)
-    if trainer.max_epochs:
-        return 0
-    return int(getattr(method.options, "steps", 0) or 0)
-
-
-def apply_trainer(method: ResolvedMethod, trainer: TrainerOptions) -> ResolvedMethod:
-    """``--max-epochs`` and ``--max-steps`` become the method's ``epochs`` and ``steps``
-    options when it has them, so the run's params, its leaderboard label and its key all show
-    the budget really trained; ``--max-epochs`` alone ends the profile's step budget."""
-    changes: dict[str, Any] = {}
-    if trainer.max_epochs and hasattr(method.options, "epochs"):
-        changes["epochs"] = trainer.max_epochs
-    if hasattr(method.options, "steps") and (trainer.max_steps or trainer.max_epochs):
-        changes["steps"] = step_budget(method, trainer)
-    return method.with_options(**changes) if changes else method
-
-
-def checkpoint_key(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions) -> str:
-    """Everything that changes the trained weights: the method's training options and code, the
-    training data, and the trainer settings of :func:`training_identity` (the seed among them)."""
-    return stable_hash(
-        {
-            "method": method.training_config(),
-            "dataset": dataset.training_fingerprint(),
-            "trainer": training_identity(method, trainer),
-        }
-    )
 
 
 @dataclass(frozen=True)
@@ -170,11 +100,6 @@ def reference_training(
     method = apply_trainer(resolve_method(registry, name, settings, options or {}), trainer)
     data = resolve_dataset(registry, dataset, settings, None, {})
     return ReferenceTraining(settings, method, data, trainer, checkpoint_key(method, data, trainer))
-
-
-def checkpoint_dir(settings: Settings, method: ResolvedMethod, key: str) -> Path:
-    family = method.cls.checkpoint_family or method.name
-    return settings.artifact_root.parent / "checkpoints" / family / key
 
 
 def _global_rank() -> int:
@@ -235,26 +160,18 @@ def watch_parent() -> None:
     threading.Thread(target=poll, name="shapebench-parent-watchdog", daemon=True).start()
 
 
-def train_here(
-    method: ResolvedMethod,
-    dataset: Dataset,
-    trainer: TrainerOptions,
-    settings: Settings,
-    quiet: bool = False,
-    retrain: bool = False,
-) -> dict[str, Any]:
-    """Train in this process (the ``shapebench train`` command); return the checkpoint record.
+def train_here(ticket: TrainingTicket, settings: Settings, quiet: bool = False) -> dict[str, Any]:
+    """Train ``ticket`` in this process (the ``shapebench train`` command); return the
+    checkpoint record.
 
     Resumes from the key's last epoch-end checkpoint when an earlier training was interrupted;
     waits for, then reuses, a training of the same key running in another process. A shipped
     reference checkpoint of the key (:mod:`shapebench.train.references`) is used instead of
-    training unless ``retrain``.
+    training unless the ticket's ``retrain``.
     """
     from shapebench.store.locks import wait_lock
 
-    method = apply_trainer(method, trainer)
-    key = checkpoint_key(method, dataset, trainer)
-    workdir = checkpoint_dir(settings, method, key)
+    method, dataset, key, workdir = ticket.method, ticket.dataset, ticket.key, ticket.workdir
     workdir.mkdir(parents=True, exist_ok=True)
     run_id = os.environ.get(RUN_ID_ENV)
     lead = _global_rank() == 0 and not run_id  # not a rank Lightning launched
@@ -272,17 +189,21 @@ def train_here(
         lock = wait_lock(lock_path(workdir), waiting)
     try:
         if lead:
-            record = _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain)
+            record = _done_or_reference(ticket, settings)
             if record is not None:  # trained by the process we waited for, or shipped
                 return record
-        return _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id)
+        return _train_locked(ticket, settings, quiet, run_id)
     finally:
         if lock is not None:
             lock.release()
 
 
-def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_id):
-    from shapebench.train.lightning_fit import LAST, TrainingInterrupted
+def _train_locked(ticket: TrainingTicket, settings: Settings, quiet: bool, run_id: str | None):
+    from shapebench.train.callbacks import TrainingInterrupted
+    from shapebench.train.checkpoints import LAST
+
+    method, dataset, trainer = ticket.method, ticket.dataset, ticket.trainer
+    key, workdir = ticket.key, ticket.workdir
 
     tracker = None
     if _global_rank() == 0 and not run_id:
@@ -310,7 +231,7 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
         run_id = tracker.start_run(
             exp, f"train {label} on {dataset.name} seed={trainer.seed}", tags
         )
-        tracker.log_params(run_id, _training_params(method, dataset, trainer))
+        tracker.log_params(run_id, _training_params(ticket))
         os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
     instance = method.instantiate()
     try:
@@ -332,40 +253,16 @@ def _train_locked(method, dataset, trainer, settings, quiet, key, workdir, run_i
     return record
 
 
-def _training_params(method: ResolvedMethod, dataset: Dataset, trainer: TrainerOptions):
+def _training_params(ticket: TrainingTicket) -> dict[str, Any]:
     return flatten(
         "",
         {
-            "method": method.config(),
-            "trainer": asdict(trainer),
-            "training": training_identity(method, trainer),
-            "dataset": dataset.config(),
+            "method": ticket.method.config(),
+            "trainer": asdict(ticket.trainer),
+            "training": ticket.identity,
+            "dataset": ticket.dataset.config(),
         },
     )
-
-
-def find_reference(method: ResolvedMethod, key: str) -> Reference | None:
-    """The shipped reference checkpoint of ``method`` for ``key``, or None."""
-    from shapebench.train.references import find
-
-    return find(method.cls.checkpoint_family or method.name, key)
-
-
-def weights_origin(
-    settings: Settings, method: ResolvedMethod, key: str, retrain: bool, reference: Reference | None
-) -> str | None:
-    """Where the weights of ``key`` come (or will come) from, as cells and rows record it:
-    ``reference:<digest>`` for a shipped reference checkpoint, None for a local training.
-    Read before any training, from the workspace's ``done.json``, else from ``reference`` (what
-    :func:`find_reference` gave for ``key``, or None)."""
-    if retrain:
-        return None
-    try:
-        record = json.loads((checkpoint_dir(settings, method, key) / "done.json").read_text())
-        return record.get("weights") if isinstance(record, dict) else None
-    except (OSError, ValueError):
-        pass
-    return None if reference is None else reference.origin
 
 
 def _reusable(record: dict[str, Any] | None, workdir: Path, retrain: bool) -> dict[str, Any] | None:
@@ -378,22 +275,26 @@ def _reusable(record: dict[str, Any] | None, workdir: Path, retrain: bool) -> di
     return record
 
 
-def _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain):
-    """With the key's lock held: the record of a finished training (or install) of ``key``, else
-    its shipped reference checkpoint installed (unless ``retrain``), else None (train it)."""
-    record = _reusable(read_done(workdir), workdir, retrain)
+def _done_or_reference(ticket: TrainingTicket, settings: Settings) -> dict[str, Any] | None:
+    """With the key's lock held: the record of a finished training (or install) of the ticket's
+    key, else its shipped reference checkpoint installed (unless ``retrain``), else None (train
+    it)."""
+    record = _reusable(read_done(ticket.workdir), ticket.workdir, ticket.retrain)
     if record is not None:
         return record
-    reference = None if retrain else find_reference(method, key)
-    if reference is None:
+    if ticket.retrain or ticket.reference is None:
         return None
-    return _use_reference(reference, method, dataset, trainer, settings, key, workdir)
+    return _use_reference(ticket, settings)
 
 
-def _use_reference(reference, method, dataset, trainer, settings, key, workdir) -> dict[str, Any]:
-    """Install ``reference`` as the checkpoint of ``key`` and log it as a training run (its
-    cost and loss terms are those of the reference training); the caller holds the key's lock."""
+def _use_reference(ticket: TrainingTicket, settings: Settings) -> dict[str, Any]:
+    """Install the ticket's reference as the checkpoint of its key and log it as a training run
+    (its cost and loss terms are those of the reference training); the caller holds the key's
+    lock."""
     from shapebench.train.references import install
+
+    reference, method, dataset = ticket.reference, ticket.method, ticket.dataset
+    key, workdir = ticket.key, ticket.workdir
 
     info = reference.info
     summary = info.get("summary") or {}
@@ -410,9 +311,9 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
     device = str(summary.get("device", ""))
     tags = training_tags(method.name, dataset.name, key, reference=reference.origin, device=device)
     run_id = tracker.start_run(
-        exp, f"reference {method.name} on {dataset.name} seed={trainer.seed}", tags
+        exp, f"reference {method.name} on {dataset.name} seed={ticket.seed}", tags
     )
-    tracker.log_params(run_id, _training_params(method, dataset, trainer))
+    tracker.log_params(run_id, _training_params(ticket))
     metrics = {
         f"summary/{k}": float(summary[k])
         for k in ("wall_seconds", "device_hours", "training_shapes", "epochs", "optimizer_steps")
@@ -440,29 +341,25 @@ def _use_reference(reference, method, dataset, trainer, settings, key, workdir) 
 
 
 def ensure_checkpoint(
-    method: ResolvedMethod,
-    dataset: Dataset,
-    trainer: TrainerOptions,
+    ticket: TrainingTicket,
     settings: Settings,
     data_root: Path | None,
     quiet: bool = False,
-    retrain: bool = False,
 ) -> dict[str, Any]:
-    """Reuse the checkpoint of an identical training, else the shipped reference checkpoint of
-    its key (unless ``retrain``), else train in a child process."""
+    """The weights of ``ticket``: the checkpoint of an identical training, else the shipped
+    reference checkpoint of its key (unless ``retrain``), else a training in a child process."""
     from shapebench.store.locks import wait_lock
 
-    method = apply_trainer(method, trainer)
-    key = checkpoint_key(method, dataset, trainer)
-    workdir = checkpoint_dir(settings, method, key)
+    method, dataset, trainer = ticket.method, ticket.dataset, ticket.trainer
+    key, workdir, retrain = ticket.key, ticket.workdir, ticket.retrain
     record = _reusable(read_done(workdir), workdir, retrain)
     if record is not None:
         return record
-    if not retrain and find_reference(method, key) is not None:  # installed here, no child
+    if not retrain and ticket.reference is not None:  # installed here, no child
         workdir.mkdir(parents=True, exist_ok=True)
         lock = wait_lock(lock_path(workdir), lambda holder: None)
         try:  # another process may have installed (or trained) it while we waited
-            record = _done_or_reference(method, dataset, trainer, settings, key, workdir, retrain)
+            record = _done_or_reference(ticket, settings)
         finally:
             lock.release()
         if record is not None:

@@ -2,7 +2,7 @@
 
 ::
 
-    from shapebench.registry.testing import check_method, check_metric
+    from shapebench.conformance.testing import check_method, check_metric
 
     def test_my_method_follows_the_rules():
         check_method("my-method", epochs=2)   # a registered name, with option overrides
@@ -10,15 +10,14 @@
     def test_my_metric_follows_the_rules():
         check_metric(MyMetric)                # or the class itself, registered or not
 
-Each helper runs every check of :mod:`shapebench.registry.check` on the component and raises
+Each helper runs every check of :mod:`shapebench.conformance` on the component and raises
 :class:`PluginCheckFailed` (an ``AssertionError``, so pytest shows it as a failed assertion)
 listing each failed check with its reason; skipped checks do not fail. It returns the
-:class:`~shapebench.registry.check.ComponentReport` otherwise.
+:class:`~shapebench.conformance.framework.ComponentReport` otherwise.
 
 The checks build a tiny synthetic dataset in a temporary folder; to build it once per test
-session, add ``pytest_plugins = ["shapebench.registry.testing"]`` to your ``conftest.py`` and pass
-the
-``shapebench_check_env`` fixture as ``env=``.
+session, add ``pytest_plugins = ["shapebench.conformance.testing"]`` to your ``conftest.py`` and
+pass the ``shapebench_check_env`` fixture as ``env=``.
 """
 
 from __future__ import annotations
@@ -28,10 +27,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from shapebench.registry.check import (
-    CheckEnv,
-    Component,
-    ComponentReport,
+from shapebench.conformance.framework import CheckEnv, Component, ComponentReport
+from shapebench.conformance.runner import (
     check_component,
     class_component,
     component,
@@ -134,8 +131,8 @@ if pytest is not None:
 
     @pytest.fixture(scope="session")
     def shapebench_check_env(tmp_path_factory: Any) -> Iterator[CheckEnv]:
-        """One :class:`~shapebench.registry.check.CheckEnv` per test session: the tiny dataset the
-        checks
-        use is built once (enable with ``pytest_plugins = ["shapebench.registry.testing"]``)."""
+        """One :class:`~shapebench.conformance.framework.CheckEnv` per test session: the tiny
+        dataset the checks use is built once (enable with
+        ``pytest_plugins = ["shapebench.conformance.testing"]``)."""
         with CheckEnv(workdir=tmp_path_factory.mktemp("shapebench-check")) as env:
             yield env
