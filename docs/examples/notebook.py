@@ -6,7 +6,7 @@ Run it (or paste its cells into a notebook) after a run or sweep has filled the 
     shapebench run -m gauss -d synthetic -O sigma=0.05
     python docs/examples/notebook.py [WORKSPACE]
 
-tests/test_frames.py runs it on a small workspace.
+tests/boards/test_frames.py runs it on a small workspace.
 """
 
 import sys

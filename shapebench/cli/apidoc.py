@@ -7,7 +7,7 @@
 
 Docstrings, signatures, dataclass fields, class attributes (with the ``#:`` comments above them),
 the metric card's allowed values and the hook specifications are all read from the modules, so
-the reference cannot drift from the code: ``tests/test_plugin_api.py`` regenerates it and fails
+the reference cannot drift from the code: ``tests/api/test_plugin_api.py`` regenerates it and fails
 when the committed file differs. Hook docstrings must document every parameter in an ``Args:``
 section, and every option-metadata key listed here must still be read by the module named for
 it; generation fails otherwise.

@@ -57,7 +57,7 @@ def chamfer_l1_halved(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
     The nearest neighbours are found without gradient (:func:`nearest_pairs`) and only the chosen
     pairs are differentiated: the same loss and gradient as through ``torch.cdist`` and ``min``
-    (tests/test_pcn.py), at about a fiftieth of the time at PCN's standard sizes, where cdist's
+    (tests/methods/test_pcn.py), at about a fiftieth of the time at PCN's standard sizes, where cdist's
     backward over the whole matrix was most of a training step (benchmarks/README.md).
     """
     to_b, to_a = nearest_pairs(a, b)

@@ -247,7 +247,7 @@ def test_a_stopped_training_resumes_from_its_checkpoint_to_the_uninterrupted_wei
 ):
     """Stopped after its first epoch (``--max-epochs 1``), then run again: it resumes from
     ``last.ckpt`` and ends bitwise where the uninterrupted training ends. (A stop mid-epoch, by a
-    signal, is tests/test_interruptions.py's.)"""
+    signal, is tests/train/test_interruptions.py's.)"""
     run = tmp_path / "run"
     first = _fit(run, max_epochs=1)
     assert int(first["global_step"]) == 2 and not _same_weights(first, straight)
