@@ -12,23 +12,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import trimesh
 from conftest import ROOT
 from shapebench_deepsdf.method import DeepSDF
 from shapebench_igr.method import IGR
 from shapebench_msc.method import MSC, MSCNoOpt
 from shapebench_occnet.method import OccNet
+from tiny_datasets import Blobs
 
 from shapebench.api import options as opts
-from shapebench.api.dataset import Dataset
 from shapebench.api.errors import ConfigError
 from shapebench.api.method import TrainerOptions, TrainingContext
 from shapebench.api.types import (
-    TRAIN,
-    TRAINED,
-    Category,
     Context,
-    ObjectData,
     ObjectRef,
     Supervision,
 )
@@ -37,7 +32,6 @@ from shapebench.implicit.completion import mesh_completion, stack_contexts
 from shapebench.implicit.losses import offsurface_samples
 from shapebench.implicit.networks import MSCEncoder
 from shapebench.implicit.recipes import PAPER_OPT_LR
-from shapebench.preprocess.samples import occupancy_samples, sdf_samples
 from shapebench.registry.discovery import get_registry
 
 AUTO_DECODERS = {"igr": IGR, "deepsdf": DeepSDF, "msc": MSC}
@@ -265,48 +259,8 @@ def test_largest_component_follows_the_recipe_for_every_implicit_method(cls):
 # -- the LightningMethod base: sample sizes, hyper-parameters, a sixth method -------------------
 
 
-class _Blobs(Dataset):
-    """Three small training meshes in memory, with every kind of training data."""
-
-    name = "blobs"
-
-    def __init__(self) -> None:
-        super().__init__(None, Path("."))
-        self.meshes = [
-            trimesh.creation.icosphere(2, radius=0.5),
-            trimesh.creation.box((0.8, 0.5, 0.3)),
-            trimesh.creation.capsule(0.6, 0.2),
-        ]
-
-    def categories(self) -> list[Category]:
-        return [Category("blob", TRAINED)]
-
-    def objects(self, split: str) -> list[ObjectRef]:
-        ids = range(len(self.meshes)) if split == TRAIN else []
-        return [ObjectRef(f"blob/{i}", "blob") for i in ids]
-
-    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
-        mesh = self.meshes[int(ref.id.split("/")[1])]
-        pts, faces = trimesh.sample.sample_surface(mesh, 500, seed=0)
-        rng = np.random.default_rng(0)
-        extra = {}
-        if Supervision.SDF_SAMPLES in need:
-            extra["sdf"] = sdf_samples(mesh, 2000, rng)
-        if Supervision.OCCUPANCY_SAMPLES in need:
-            extra["occupancy"] = occupancy_samples(mesh, 2000, rng)
-        if Supervision.COMPLETE_POINTS in need:
-            extra["complete_points"] = mesh.sample(800).astype(np.float32)
-        return ObjectData(
-            ref,
-            pts.astype(np.float32),
-            mesh.face_normals[faces].astype(np.float32),
-            pts.astype(np.float32),
-            extra,
-        )
-
-
 def _first_batch(method) -> dict[str, torch.Tensor]:
-    ctx = TrainingContext(_Blobs(), TrainerOptions(), Path("."), "", quiet=True)
+    ctx = TrainingContext(Blobs(), TrainerOptions(), Path("."), "", quiet=True)
     data = method.data_module(ctx)
     data.load_objects()
     return next(iter(data.train_dataloader()))
@@ -402,11 +356,11 @@ def test_a_sixth_trained_method_is_one_method_class_and_one_module(tmp_path, mon
         )
     )
     trainer = TrainerOptions(accelerator="cpu", devices=1, seed=0)
-    ctx = TrainingContext(_Blobs(), trainer, tmp_path / "train", "", quiet=True)
+    ctx = TrainingContext(Blobs(), trainer, tmp_path / "train", "", quiet=True)
     path = method.fit(ctx)
     fresh = PointSDF(method.options)
     fresh.load_checkpoint(path)
-    sphere = _Blobs().load(ObjectRef("blob/0", "blob"))
+    sphere = Blobs().load(ObjectRef("blob/0", "blob"))
     context = Context(sphere.ref, sphere.surface_points[:100], None, seed=0)
     results = fresh.complete_batch([context, context], n_points=500)
     assert all(not isinstance(r, Exception) for r in results), results

@@ -19,7 +19,7 @@ import torch
 from conftest import TINY
 from shapebench_msc.method import MSC
 from shapebench_synthetic.dataset import SyntheticDataset, SyntheticOptions
-from test_training_repro import TINY_MSC, _meshes, _Shapes
+from tiny_datasets import TINY_MSC, Shapes, meshes
 
 from shapebench.api.contexts import CONTEXTS_VERSION, ContextStore
 from shapebench.api.errors import ShapebenchError
@@ -120,7 +120,7 @@ def checkpoint(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("ckpt") / "key-a"
     trainer_opts = TrainerOptions(accelerator="cpu", devices=1, seed=0)
     method = MSC(MSC.Options(**{**TINY_MSC, "epochs": 1}))
-    method.fit(TrainingContext(_Shapes(_meshes()), trainer_opts, workdir, "", None, True))
+    method.fit(TrainingContext(Shapes(meshes()), trainer_opts, workdir, "", None, True))
     return workdir / "last.ckpt"
 
 

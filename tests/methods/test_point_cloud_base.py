@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import ROOT
-from test_method_protocol import _Blobs  # three small meshes with their complete clouds
+from tiny_datasets import Blobs  # three small meshes with their complete clouds
 
 from shapebench.api.method import TrainerOptions, TrainingContext
 from shapebench.api.types import Context, ObjectRef, Supervision
@@ -84,14 +84,14 @@ def test_the_docs_example_trains_and_completes_an_object(tmp_path, monkeypatch):
         Supervision.COMPLETE_POINTS: 128,
     }
     trainer = TrainerOptions(accelerator="cpu", devices=1, seed=0)
-    ctx = TrainingContext(_Blobs(), trainer, tmp_path / "train", "", quiet=True)
+    ctx = TrainingContext(Blobs(), trainer, tmp_path / "train", "", quiet=True)
     path = method.fit(ctx)  # one epoch of three objects in batches of two: two steps
     summary = json.loads((ctx.workdir / "summary.json").read_text())
     assert summary["optimizer_steps"] == 2
     assert {"train/loss", "train/chamfer"} <= set(summary["final"])  # each term is logged
     fresh = PointMLP(method.options)
     fresh.load_checkpoint(path)
-    blob = _Blobs().load(ObjectRef("blob/1", "blob"))
+    blob = Blobs().load(ObjectRef("blob/1", "blob"))
     context = Context(blob.ref, blob.surface_points[:30], None, seed=0)
     results = fresh.complete_batch([context, context], n_points=500)
     assert all(not isinstance(r, Exception) for r in results), results

@@ -8,7 +8,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from test_interruptions import processes_mentioning, wait_for
+from processes import processes_mentioning, wait_for
 from test_soak import SWEEP, all_runs, cell_runs, leaderboard, score_columns
 
 from shapebench.api.protocol import SCORE_RTOL

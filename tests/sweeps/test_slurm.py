@@ -77,7 +77,7 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
     import json
     import time
 
-    from test_interruptions import wait_for
+    from processes import wait_for
 
     monkeypatch.setenv("SLURM_CONF", str(cluster.conf))
     sb = shapebench

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from test_interruptions import processes_mentioning, saved_epochs, wait_for
+from processes import processes_mentioning, saved_epochs, wait_for
 
 SWEEP = """
 name: soak

@@ -10,14 +10,12 @@ import json
 import os
 import signal
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import torch
 from conftest import TINY
-
-from shapebench.train.checkpoints import checkpoint_epochs
+from processes import last_ckpt, processes_mentioning, saved_epochs, wait_for
 
 pytestmark = pytest.mark.slow  # every test here starts the CLI or trains
 
@@ -43,44 +41,6 @@ IGR = [
     "-O",
     "opt_steps=5",
 ]
-
-
-def wait_for(condition: Callable[[], object], timeout: float = 120, what: str = "") -> object:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what or condition}")
-
-
-def processes_mentioning(text: str, parent: int | None = None) -> list[int]:
-    """Live processes whose command line contains ``text`` (zombies excluded); with ``parent``,
-    only that process's children, so that a test never signals a process it did not start (a
-    user's own sweep on the same machine, say)."""
-    found = []
-    for proc in Path("/proc").iterdir():
-        if not proc.name.isdigit() or int(proc.name) == os.getpid():
-            continue
-        try:
-            cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-            state, ppid = (proc / "stat").read_text().rsplit(")", 1)[1].split()[:2]
-        except OSError:
-            continue
-        if text in cmdline and state != "Z" and (parent is None or int(ppid) == parent):
-            found.append(int(proc.name))
-    return found
-
-
-def last_ckpt(sb) -> Path | None:
-    found = list((sb.workspace / "checkpoints" / "igr").glob("*/last.ckpt"))
-    return found[0] if found else None
-
-
-def saved_epochs(sb) -> int:
-    path = last_ckpt(sb)
-    return (checkpoint_epochs(path) or 0) if path else 0
 
 
 def training_runs(sb, status: str | None = None):
@@ -192,7 +152,7 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
     where training stopped (mid-epoch, or at the end of an epoch's last step), and the resumed
     training ends bitwise where an uninterrupted one does."""
     from shapebench_msc.method import MSC
-    from test_training_repro import TINY_MSC, _meshes, _Shapes
+    from tiny_datasets import TINY_MSC, Shapes, meshes
 
     from shapebench.api.method import TrainerOptions, TrainingContext
     from shapebench.train.callbacks import TrainingInterrupted
@@ -200,7 +160,7 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
 
     def fit(name: str) -> Path:
         trainer = TrainerOptions(accelerator="cpu", devices=1, seed=3)
-        ctx = TrainingContext(_Shapes(_meshes()), trainer, tmp_path / name, "", None, True)
+        ctx = TrainingContext(Shapes(meshes()), trainer, tmp_path / name, "", None, True)
         return MSC(MSC.Options(**{**TINY_MSC, "epochs": 4})).fit(ctx)
 
     straight = torch.load(fit("straight"), map_location="cpu", weights_only=True)

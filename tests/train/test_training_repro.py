@@ -8,64 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import trimesh
 from shapebench_msc.method import MSC
+from tiny_datasets import TINY_MSC, Shapes, meshes
 
-from shapebench.api.dataset import Dataset
 from shapebench.api.method import TrainerOptions, TrainingContext
-from shapebench.api.types import TRAIN, TRAINED, Category, ObjectData, ObjectRef, Supervision
 
 pytestmark = pytest.mark.slow  # every test trains with Lightning
-
-#: A tiny MSC: its training step draws context and target subsets, the reparameterised code and
-#: Eikonal samples, and its data module draws surface points and the shuffle order.
-TINY_MSC = dict(
-    latent_dim=8,
-    width=32,
-    depth=2,
-    encoder_width=16,
-    encoder_layers=1,
-    epochs=2,
-    batch_shapes=2,
-    surface_points=64,
-    max_target=32,
-    lr=1e-3,
-)
-
-
-class _Shapes(Dataset):
-    """A handful of small training meshes held in memory."""
-
-    name = "shapes"
-
-    def __init__(self, meshes: list[trimesh.Trimesh]) -> None:
-        super().__init__(None, Path("."))
-        self.meshes = meshes
-
-    def categories(self) -> list[Category]:
-        return [Category("blob", TRAINED)]
-
-    def objects(self, split: str) -> list[ObjectRef]:
-        if split != TRAIN:
-            return []
-        return [ObjectRef(f"blob/{i}", "blob") for i in range(len(self.meshes))]
-
-    def load(self, ref: ObjectRef, need: frozenset[Supervision] = frozenset()) -> ObjectData:
-        mesh = self.meshes[int(ref.id.split("/")[1])]
-        pts, faces = trimesh.sample.sample_surface(mesh, 500, seed=0)
-        normals = mesh.face_normals[faces]
-        return ObjectData(
-            ref, pts.astype(np.float32), normals.astype(np.float32), pts.astype(np.float32)
-        )
-
-
-def _meshes() -> list[trimesh.Trimesh]:
-    return [
-        trimesh.creation.icosphere(2, radius=0.5),
-        trimesh.creation.box((0.8, 0.5, 0.3)),
-        trimesh.creation.capsule(0.6, 0.2),
-        trimesh.creation.box((0.3, 0.3, 1.0)),
-    ]
 
 
 def _train(
@@ -80,7 +28,7 @@ def _train(
     """Two epochs of the tiny MSC in this process (unless ``options`` say otherwise); the
     weights it saved."""
     trainer = TrainerOptions(accelerator="cpu", devices=1, seed=seed)
-    ctx = TrainingContext(_Shapes(_meshes()), trainer, tmp_path / name, tracking_uri, run_id, quiet)
+    ctx = TrainingContext(Shapes(meshes()), trainer, tmp_path / name, tracking_uri, run_id, quiet)
     path = MSC(MSC.Options(**{**TINY_MSC, **options})).fit(ctx)
     state = torch.load(path, map_location="cpu", weights_only=False)
     return {"global_step": state["global_step"], **state["state_dict"]}
