@@ -57,8 +57,8 @@ def chamfer_l1_halved(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
     The nearest neighbours are found without gradient (:func:`nearest_pairs`) and only the chosen
     pairs are differentiated: the same loss and gradient as through ``torch.cdist`` and ``min``
-    (tests/methods/test_pcn.py), at about a fiftieth of the time at PCN's standard sizes, where cdist's
-    backward over the whole matrix was most of a training step (benchmarks/README.md).
+    (tests/methods/test_pcn.py), at about a fiftieth of the time at PCN's standard sizes, where
+    cdist's backward over the whole matrix was most of a training step (benchmarks/README.md).
     """
     to_b, to_a = nearest_pairs(a, b)
     return 0.5 * (distances_to(a, b, to_b).mean(dim=1) + distances_to(b, a, to_a).mean(dim=1))
