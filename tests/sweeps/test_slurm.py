@@ -13,7 +13,9 @@ import pytest
 from slurm_cluster import missing_requirements, start_cluster
 from test_soak import SWEEP, all_runs, cell_runs, leaderboard
 
-pytestmark = pytest.mark.slow
+#: One cluster on this machine at a time: every test of this file runs in the same xdist worker
+#: (`--dist loadgroup`), which starts the module's cluster once.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("slurm")]
 
 DDP = ["--devices", "2", "--strategy", "ddp", "--accelerator", "cpu"]
 

@@ -20,6 +20,7 @@ import pytest
 import torch
 import trimesh
 from shapebench_msc.method import MSC
+from tiny_datasets import TINY_MSC, meshes
 
 from shapebench.api.dataset import Dataset, ObjectLoadError
 from shapebench.api.errors import CorruptFileWarning, ShapebenchError
@@ -35,26 +36,9 @@ from shapebench.train.checkpoints import (
 from shapebench.train.data import ShapeDataModule
 from shapebench.train.seeding import seed_training, step_generator
 
-#: A tiny MSC: 4 shapes in batches of 2 are 2 optimiser steps an epoch, 4 in its 2 epochs.
-TINY_MSC = dict(
-    latent_dim=8,
-    width=32,
-    depth=2,
-    encoder_width=16,
-    encoder_layers=1,
-    epochs=2,
-    batch_shapes=2,
-    surface_points=64,
-    max_target=32,
-    lr=1e-3,
-)
-
-MESHES = [
-    trimesh.creation.icosphere(2, radius=0.5),
-    trimesh.creation.box((0.8, 0.5, 0.3)),
-    trimesh.creation.capsule(0.6, 0.2),
-    trimesh.creation.box((0.3, 0.3, 1.0)),
-]
+#: tiny_datasets' four meshes: TINY_MSC takes them in batches of 2, 2 optimiser steps an epoch,
+#: 4 in its 2 epochs.
+MESHES = meshes()
 
 
 class _Blobs(Dataset):
