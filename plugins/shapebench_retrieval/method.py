@@ -92,7 +92,7 @@ class Retrieval(Method):
         else:  # every point, then repeats drawn at random
             rows = np.concatenate([np.arange(len(gt)), rng.choice(len(gt), n_points - len(gt))])
         info = {
-            "retrieved": float(best),  # its position in the train split
+            "retrieved": float(best),  # its position among the indexed training shapes
             "fit": float(score),  # the one-sided Chamfer that chose it
             "same_category": float(self.index.categories[best] == context.ref.category),
             "searched": float(searched),  # shapes whose score was computed to the end
