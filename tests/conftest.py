@@ -118,12 +118,35 @@ def data_cache(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("cache")
 
 
-#: Variables read when a preloaded library is imported: a command given one starts with exec.
+#: Variables read when a preloaded library is imported: a command that sets one to another value
+#: than this process's starts with exec.
 EXEC_ONLY_ENV = {"OMP_NUM_THREADS", "MKL_NUM_THREADS", "PYTHONWARNINGS", "PYTHONHASHSEED"}
+
+
+def _share_the_cores() -> None:
+    """Under xdist, each worker's torch (in the tests, in the fork server and in every command
+    they start) gets its share of the cores, as ``sweep -j N`` gives its workers: two workers of
+    two torch threads each on two cores spend their time waiting on each other. A thread count
+    given in the environment is kept."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1)
+    if workers < 2 or "OMP_NUM_THREADS" in os.environ:
+        return
+    threads = str(max(1, (os.cpu_count() or 1) // workers))
+    os.environ["OMP_NUM_THREADS"] = threads
+    os.environ.setdefault("MKL_NUM_THREADS", threads)
+
+
+_share_the_cores()
 
 #: Commands run by ``Shapebench(...)`` fork a pre-imported interpreter (tests/cli_fork.py), unless
 #: SHAPEBENCH_TEST_EXEC=1; ``Shapebench.popen`` always starts a new interpreter.
 _fork_server = None if os.environ.get("SHAPEBENCH_TEST_EXEC") == "1" else ForkServer()
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Slow tests first (stable otherwise): under xdist the long ones then start early and the
+    quick ones fill in behind them, instead of one long test ending the run on one worker."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:
@@ -176,7 +199,8 @@ class Shapebench:
         """Run ``shapebench *args``; ``fresh``: in a new interpreter, for a test of what the
         command itself imports (the fork server has imported torch and Lightning already)."""
         env = self.env()
-        if _fork_server is not None and not fresh and not (set(env) & EXEC_ONLY_ENV):
+        forkable = all(env.get(k) == os.environ.get(k) for k in EXEC_ONLY_ENV)
+        if _fork_server is not None and not fresh and forkable:
             proc = _fork_server.run(list(args), env, self.workspace, timeout)
         else:
             proc = subprocess.run(

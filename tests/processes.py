@@ -11,14 +11,22 @@ from pathlib import Path
 from shapebench.train.checkpoints import checkpoint_epochs
 
 
-def wait_for(condition: Callable[[], object], timeout: float = 120, what: str = "") -> object:
+def wait_for(
+    condition: Callable[[], object],
+    timeout: float = 120,
+    what: str = "",
+    explain: Callable[[], str] | None = None,
+) -> object:
+    """Poll ``condition`` until it is truthy; on timeout fail with ``what`` and, from
+    ``explain``, what the test can say about why (a job's log, the scheduler's view)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = condition()
         if value:
             return value
         time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what or condition}")
+    why = f"\n{explain()}" if explain else ""
+    raise AssertionError(f"timed out waiting for {what or condition}{why}")
 
 
 def processes_mentioning(text: str, parent: int | None = None) -> list[int]:

@@ -52,6 +52,29 @@ class SlurmCluster:
             raise RuntimeError(f"{' '.join(cmd)}: {res.stderr}")
         return res.stdout
 
+    def describe(self, job: str | None = None, log: str | Path | None = None) -> str:
+        """What the scheduler says about the node (and ``job``), the tail of the job's own log
+        and the daemons' logs: the message a timed-out wait prints."""
+        parts = [
+            "sinfo: " + self.run("sinfo", "-h", "-o", "%T %E", check=False).strip(),
+            "squeue: " + self.run("squeue", "-h", "-o", "%i %T %r", check=False).strip(),
+        ]
+        if job:
+            parts.append(self.run("scontrol", "show", "job", job, check=False).strip())
+        if log and Path(log).exists():
+            parts.append(f"{log}:\n" + Path(log).read_text(errors="replace")[-3000:])
+        return "\n".join([*parts, self.logs()])
+
+    def wait_idle(self, timeout: float = 120) -> None:
+        """Wait until the node is idle again after a test's jobs (slurmd cleans up a finished
+        job's processes before it takes the next); fail naming the node's state otherwise."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.run("sinfo", "-h", "-o", "%T", check=False).split() == ["idle"]:
+                return
+            time.sleep(0.5)
+        raise AssertionError(f"the test SLURM node is not idle:\n{self.describe()}")
+
     def logs(self) -> str:
         return "\n".join(
             p.read_text(errors="replace")[-3000:] for p in sorted((self.root / "log").glob("*.log"))

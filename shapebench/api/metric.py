@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar, Literal
 
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES, frame_description
@@ -67,6 +67,10 @@ COMBINES: dict[str, str] = {
 #: tags (and the cell keys that hold them) of cards that do not use them never change.
 _LATER_FIELDS = ("combine", "threshold", "higher_is_better", "quantity")
 
+#: Fields that say how to *read* values, not how they are computed: ``as_tag`` never writes
+#: them, so they are in no run's tag and no cell key, and changing one reruns nothing.
+_READING_FIELDS = ("tail_threshold",)
+
 #: The reduction the built-in F-score wrote before ``threshold`` existed (tags of old runs).
 _LEGACY_FRACTION = "fraction within tau="
 
@@ -111,6 +115,13 @@ class MetricCard:
     #: What each per-point value is, when it is not a nearest-neighbour distance (required when
     #: ``power`` is 0), e.g. "|cos| between the normals of nearest neighbours".
     quantity: str = ""
+    #: Where a value counts as a bad result, for the leaderboards' tail column (the share of
+    #: (object, seed) pairs worse than it: above it, or below it when ``higher_is_better``). In
+    #: displayed units (after ``scale``) in the unit-radius frame; leaderboards in another frame
+    #: convert it by the frame's factor to the ``power``. ``None``: no tail column. A reading
+    #: aid, not part of the convention: it is left out of the tag (:data:`_READING_FIELDS`) and
+    #: out of equality, so it can change without rerunning a cell.
+    tail_threshold: float | None = field(default=None, compare=False)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming every problem of this card.
@@ -119,9 +130,10 @@ class MetricCard:
         ``frame`` (tables below), a valid card has: a ``threshold`` (a positive number) exactly
         when ``reduction`` is ``"fraction"``; a ``combine`` other than ``"sum"`` only with
         ``direction="symmetric"``; ``halved=True`` only with ``direction="symmetric"`` and
-        ``combine="sum"``; a ``quantity`` when ``power`` is 0; a positive ``scale``; an integer
-        ``eval_points`` >= 0; boolean ``halved`` and ``higher_is_better``; and no ``;`` (the tag
-        separator) in ``metric``, ``frame`` or ``quantity``.
+        ``combine="sum"``; a ``quantity`` when ``power`` is 0; a finite ``tail_threshold`` or
+        None; a positive ``scale``; an integer ``eval_points`` >= 0; boolean ``halved`` and
+        ``higher_is_better``; and no ``;`` (the tag separator) in ``metric``, ``frame`` or
+        ``quantity``.
         """
         problems = _problems(self)
         if problems:
@@ -141,10 +153,13 @@ class MetricCard:
         """A stable string form for MLflow tags, cell keys and equality checks.
 
         ``key=value`` pairs joined by ``;``; fields added after the first format appear only when
-        they differ from their default, so older cards keep their tags.
+        they differ from their default, so older cards keep their tags; the fields of reading
+        (``tail_threshold``) never appear.
         """
         items = []
         for f in fields(self):
+            if f.name in _READING_FIELDS:
+                continue
             value = getattr(self, f.name)
             if f.name in _LATER_FIELDS and value == f.default:
                 continue
@@ -246,6 +261,11 @@ def _problems(card: MetricCard) -> list[str]:
         out.append(f"combine={card.combine!r} joins two directions: it needs direction='symmetric'")
     if card.halved is True and (card.direction != "symmetric" or card.combine != "sum"):
         out.append("halved=True needs direction='symmetric' and combine='sum'")
+    tail = card.tail_threshold
+    if tail is not None and (
+        isinstance(tail, bool) or not isinstance(tail, (int, float)) or not math.isfinite(tail)
+    ):
+        out.append(f"tail_threshold={tail!r} must be a finite number or None")
     if card.power == 0 and not card.quantity:
         out.append("power=0 (not a distance) needs a quantity saying what each value is")
     return out
@@ -360,17 +380,6 @@ PRESETS: dict[str, tuple[str, ...]] = {
     # The MSC paper's tables (with --frame unit-diameter).
     "paper": ("chamfer-l2",),
 }
-
-
-def expand_presets(names: list[str], installed: list[str]) -> list[str]:
-    """``names`` with every preset replaced by its metrics (installed names win over presets),
-    each metric once, in order."""
-    out: list[str] = []
-    for name in names:
-        for metric in (name,) if name in installed else PRESETS.get(name, (name,)):
-            if metric not in out:
-                out.append(metric)
-    return out
 
 
 #: The ``eval_points`` the registry passes to ``card()`` when it checks a metric plugin.

@@ -64,6 +64,20 @@ class Board:
     #: Variant key -> why the metric does not apply to it (a points-only method under a mesh
     #: metric): its cells show ``n/a`` and the reason is printed under the table.
     not_applicable: dict[str, str] = field(default_factory=dict)
+    #: The floor rows' variant keys present in the table (rows labelled or run as a
+    #: ``--floor``: by default ``given-points`` and the method ``retrieval``); empty: no marks.
+    floor_rows: list[str] = field(default_factory=list)
+    #: :func:`shapebench.boards.stats.floor_test`: per (variant, context) the floor used, the
+    #: p-values against it and ``below_floor``; None without floor rows.
+    floors: pd.DataFrame | None = None
+    #: The tail threshold in the table's displayed units and frame (the raw table's
+    #: ``tail_share`` counts the samples worse than it); None: no tail column.
+    tail_threshold: float | None = None
+    #: Per (variant, context, category): mean, median and n under the failure rule, displayed
+    #: units (:func:`shapebench.boards.stats.category_table`); empty without categories.
+    categories: pd.DataFrame | None = None
+    #: Per (variant, context): the worst sample (object, seed, ``scored`` in displayed units).
+    worst: pd.DataFrame | None = None
 
 
 def table_id(board: Board) -> str:
@@ -77,3 +91,16 @@ def table_id(board: Board) -> str:
 def table_title(board: Board) -> str:
     """The table's split, and its context protocol unless it is the paper's."""
     return board.split if board.context == "sparse" else f"{board.split}, {board.context}"
+
+
+def floor_labels(board: Board) -> list[str]:
+    """The labels of the table's floor rows, in row order."""
+    return [r.label for r in board.rows if r.variant in board.floor_rows]
+
+
+def below_floor(board: Board, variant: str, ctx: int) -> pd.Series | None:
+    """The floor test of one cell (:attr:`Board.floors`), None where it was not tested."""
+    if board.floors is None or board.floors.empty:
+        return None
+    hit = board.floors[(board.floors.variant == variant) & (board.floors.context == ctx)]
+    return None if hit.empty else hit.iloc[0]

@@ -61,3 +61,34 @@ def default_metric(runs: pd.DataFrame) -> str:
         return get_registry().load("dataset", dataset).default_metric
     except ShapebenchError:
         return "chamfer-l2"
+
+
+def tail_threshold(metric: str, card: str) -> float | None:
+    """The tail threshold of a table's metric, in the table's displayed units and frame: the
+    installed metric's card states it (:attr:`MetricCard.tail_threshold`, x scale, unit-radius
+    frame; a run's tag never carries it), converted to the table's frame by the frame's factor
+    to the card's power (squared distances in the unit-diameter frame: a quarter). None when the
+    metric states none or is not installed here."""
+    from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
+    from shapebench.registry.discovery import get_registry
+
+    try:
+        board_card = MetricCard.from_tag(card)
+    except ValueError:
+        return None
+    try:
+        installed = get_registry().load("metric", metric)().card(board_card.eval_points)
+    except Exception:  # an uninstalled or broken plugin: the table goes without a tail column
+        return None
+    threshold = installed.tail_threshold
+    if threshold is None:
+        return None
+    if board_card.power > 0 and board_card.reduction != "fraction":
+        factor = FRAMES[board_card.frame][0] / FRAMES[DEFAULT_FRAME][0]
+        threshold *= factor**board_card.power
+    return float(threshold)
+
+
+def worse_word(higher: bool) -> str:
+    """How a value worse than the tail threshold lies: above it, or below it."""
+    return "below" if higher else "above"

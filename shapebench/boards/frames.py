@@ -195,14 +195,29 @@ def load_leaderboard(
     workspace: str | Path | None = None,
     tracking_uri: str | None = None,
     protocol: str = DEFAULT_CONTEXT,
+    floors: list[str] | None = None,
+    tail: float | None = None,
 ) -> pd.DataFrame:
     """The table ``shapebench leaderboard`` writes as ``<dataset>-<split>.csv``: one row per
-    (kind, row label, context size), ``kind`` ``raw`` (mean and std in the table's scale, x1000
-    for Chamfer) or ``normalised`` (per object divided by ``reference``), with the significance
-    columns (``best``, ``tied``, ``p_vs_best``, ``p_holm``) and the training cost."""
+    (kind, row label, context size), ``kind`` ``raw`` (mean, std and median in the table's
+    scale, x1000 for Chamfer, and ``tail_share``: the share of samples worse than
+    ``tail_threshold``) or ``normalised`` (per object divided by ``reference``), with the
+    significance columns (``best``, ``tied``, ``p_vs_best``, ``p_holm``), the floor columns
+    (``floor``, ``p_vs_floor``, ``p_floor_holm``, ``below_floor``; ``floors`` as
+    ``--floor``, None for the defaults) and the training cost. ``tail``: the tail threshold
+    (default: the metric card's)."""
     tracker = _tracker(workspace, tracking_uri)
     board = build_board(
-        tracker, dataset, split, reference, metric, frame, data_version, protocol=protocol
+        tracker,
+        dataset,
+        split,
+        reference,
+        metric,
+        frame,
+        data_version,
+        protocol=protocol,
+        floors=floors,
+        tail=tail,
     )
     if board is None:
         raise _no_runs(dataset, split, tracker.uri)

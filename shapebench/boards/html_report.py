@@ -35,10 +35,12 @@ import pandas as pd
 from shapebench import __version__
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
-from shapebench.boards.board import Board, Row, table_id, table_title
+from shapebench.boards.board import Board, Row, below_floor, floor_labels, table_id, table_title
 from shapebench.boards.leaderboard import board_path, build_board
-from shapebench.boards.report_pictures import grids_and_spreads
+from shapebench.boards.markdown import FLOOR_MARK, card_line, floor_legend, tail_text
+from shapebench.boards.report_pictures import grids_and_spreads, worst_pictures
 from shapebench.boards.splits import protocols_with_runs, splits_with_runs
+from shapebench.boards.stats import ALPHA
 from shapebench.config import Settings
 from shapebench.store.tracking import Tracker, experiment_name
 
@@ -54,6 +56,9 @@ class Section:
     figures: dict[str, str]  # name -> inline SVG
     grids: list[tuple[str, str]] = field(default_factory=list)  # (object, PNG data URI)
     spreads: list[tuple[str, str]] = field(default_factory=list)  # (caption, PNG data URI)
+    #: Per row, its worst sample at the largest context size: (label, object, seed, value,
+    #: status, PNG data URI or "" where the cell did not picture that object).
+    worst: list[tuple[str, str, int, float, str, str]] = field(default_factory=list)
     files: list[Path] = field(default_factory=list)  # written beside the report
 
 
@@ -147,6 +152,18 @@ def _raw_cell(board: Board, row: Row, ctx: int) -> str:
         title = f"p vs best {sig['p_vs_best']:.3g}, Holm {sig['p_holm']:.3g}"
         if bool(sig["tied"]):
             cls, text = "tied", text + " ≈"
+    floor = below_floor(board, row.variant, ctx)
+    if floor is not None:
+        labels = {x.variant: x.label for x in board.rows}
+        title += (
+            f"{'; ' if title else ''}p vs floor {labels.get(floor['floor'], floor['floor'])} "
+            f"{floor['p_vs_floor']:.3g}, Holm {floor['p_floor_holm']:.3g}"
+        )
+        if bool(floor["below_floor"]):
+            text += f" {FLOOR_MARK}"
+    tail = tail_text(board, r)
+    if tail:
+        text += f" ({tail})"
     if r["failures"]:
         text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
     attrs = f' class="{cls}"' if cls else ""
@@ -235,6 +252,122 @@ def _winners(board: Board) -> str:
     return (
         f"<p>Winner ({direction} mean) per context size, paired Wilcoxon over the same "
         f'objects, Holm-corrected:</p><ul class="winners">{"".join(items)}</ul>'
+        + _floor_summary(board)
+    )
+
+
+def floor_sentences(board: Board) -> list[str]:
+    """Per context size, in words: how many rows are not significantly better than the floor,
+    and which (plain text; none without floor rows)."""
+    if board.floors is None or board.floors.empty:
+        return []
+    labels = {r.variant: r.label for r in board.rows}
+    out = []
+    for ctx in board.contexts:
+        f = board.floors[board.floors.context == ctx]
+        if f.empty:
+            continue
+        floor = labels.get(f.iloc[0]["floor"], f.iloc[0]["floor"])
+        below = [labels.get(v, v) for v in f[f.below_floor.astype(bool)].variant]
+        order = {r.label: i for i, r in enumerate(board.rows)}
+        below.sort(key=lambda label: order.get(label, len(order)))
+        text = (
+            f"At {ctx} points {len(below)} of {len(f)} rows are not better than the "
+            f"{'better ' if len(floor_labels(board)) > 1 else ''}floor ({floor})"
+        )
+        out.append(text + (": " + ", ".join(below) + "." if below else "."))
+    return out
+
+
+def _floor_summary(board: Board) -> str:
+    sentences = floor_sentences(board)
+    if not sentences:
+        return ""
+    items = "".join(f"<li>{_e(t)}</li>" for t in sentences)
+    return (
+        f"<p>Floors ({FLOOR_MARK} in the table): a row is better than the floor only with a "
+        "better mean and a Holm-corrected paired Wilcoxon p below α = "
+        f'{ALPHA}.</p><ul class="floors">{items}</ul>'
+    )
+
+
+def _categories(board: Board) -> str:
+    """The per-category means (median in the title), one table per context size, the largest
+    open; "" without categories."""
+    cats = board.categories
+    if cats is None or cats.empty or cats["category"].nunique() < 2:
+        return ""
+    names = sorted(cats["category"].unique(), key=str)
+    parts = [
+        "<h3>Per category</h3>",
+        '<p class="note">Mean over each category\'s samples under the failure rule (hover a '
+        "cell for its median and sample count); <code>shapebench leaderboard</code> writes them "
+        "all beside the table as <code>&lt;table&gt;-categories.csv</code>.</p>",
+    ]
+    for ctx in sorted(board.contexts, reverse=True):
+        at = cats[cats.context == ctx]
+        if at.empty:
+            continue
+        head = "".join(f"<th>{_e(c)}</th>" for c in names)
+        body = []
+        for row in board.rows:
+            mine = at[at.variant == row.variant].set_index("category")
+            if mine.empty:
+                continue
+            cells = []
+            for c in names:
+                if c not in mine.index:
+                    cells.append('<td data-sort="Infinity">–</td>')
+                    continue
+                m = mine.loc[c]
+                cells.append(
+                    f'<td data-sort="{_num(m["mean"])}" title="median {m["median"]:.2f}, '
+                    f'n {int(m["n"])}">{m["mean"]:.2f}</td>'
+                )
+            body.append(f"<tr><td>{_e(row.label)}</td>{''.join(cells)}</tr>")
+        table = (
+            f'<table class="sortable" id="cat-{_e(table_id(board))}-{ctx}"><thead><tr>'
+            f"<th>method</th>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+        )
+        opened = " open" if ctx == max(board.contexts) else ""
+        parts.append(
+            f"<details{opened}><summary>{ctx} points</summary>"
+            f'<div class="scroll">{table}</div></details>'
+        )
+    return "\n".join(parts)
+
+
+def _worst(sec: Section) -> str:
+    """Per row, its worst sample at the largest context size: named, and pictured where the
+    cell pictured that object."""
+    if not sec.worst:
+        return ""
+    b = sec.board
+    ctx = max(b.contexts)
+    items, pictures = [], []
+    for label, obj, seed, value, status, uri in sec.worst:
+        shown = "pictured below" if uri else "not pictured by its cell"
+        if status != "ok":  # scored as the worst success of its cell
+            shown = f"{status}, scored as the worst success; {shown}"
+        items.append(
+            f"<li><code>{_e(label)}</code>: <code>{_e(obj)}</code>, seed {seed}: "
+            f"{value:.2f} ({_e(shown)})</li>"
+        )
+        if uri:
+            pictures.append(
+                f'<div class="pictures"><img alt="worst object of {_e(label)}: {_e(obj)}" '
+                f'src="{uri}"></div>'
+            )
+    return "\n".join(
+        [
+            f"<h3>Worst objects at {ctx} points</h3>",
+            '<p class="note">Per row, the (object, seed) pair with the worst value at the '
+            "largest context size, so that failures are seen and not averaged away. A cell "
+            "pictures only the split's fixed objects (the grids above): a worst object among "
+            "them is pictured, the others are named.</p>",
+            f"<ul>{''.join(items)}</ul>",
+            *pictures,
+        ]
     )
 
 
@@ -288,26 +421,40 @@ def _environment() -> str:
     )
 
 
-def _section(sec: Section) -> str:
-    from shapebench.boards.cards import card_text
+def _tail_note(board: Board) -> str:
+    """What the parenthesis beside each mean says."""
+    from shapebench.boards.cards import higher_is_better, worse_word
 
+    text = "Beside each mean: the median (med.)"
+    if board.tail_threshold is not None:
+        worse = worse_word(higher_is_better(board.metric, board.card))
+        text += (
+            f" and the share of samples {worse} {board.tail_threshold:g}, the metric card's "
+            "tail threshold"
+        )
+    return text + "."
+
+
+def _section(sec: Section) -> str:
     b = sec.board
     raw, norm = _tables(b)
     sid = _e(table_id(b))
     parts = [
         f'<h2 id="split-{sid}">{_e(b.dataset)} / {_e(table_title(b))}: {_e(b.metric)}</h2>',
         _winners(b),
-        f"<p><b>Metric card</b>: {_e(card_text(b.card))}. <b>Protocol</b>: {_e(b.protocol)}; "
+        f"<p><b>Metric card</b>: {_e(card_line(b))}. <b>Protocol</b>: {_e(b.protocol)}; "
         f"distances in the {_e(FRAMES[b.frame][1])}.</p>",
         *(f'<p class="note">Left out: {_e(item)}.</p>' for item in b.left_out),
         f"<h3>Raw: {_e(b.metric)} x{b.scale:g}, mean ± std over objects</h3>",
         '<p class="note">Bold: the winner at that context size; ≈ (shaded): not significantly '
         "different from it; hover a cell for its p-values. Click a header to sort. Failed "
-        "objects score as the worst success of their cell.</p>",
+        "objects score as the worst success of their cell. " + _e(_tail_note(b)) + "</p>",
+        *([f'<p class="note">{_e(floor_legend(b).replace("`", ""))}</p>'] if b.floor_rows else []),
         f'<div class="scroll">{raw}</div>',
         f"<h3>Normalised: per object divided by <code>{_e(b.reference)}</code> "
         "(the paper's eq. 8)</h3>",
         norm if b.normalized is not None else f'<p class="note">{_e(b.note)}</p>',
+        _categories(b),
         "<h3>Figures</h3>",
         *(
             f'<div class="figure" id="fig-{name}-{sid}">{svg}</div>'
@@ -327,6 +474,7 @@ def _section(sec: Section) -> str:
         ]
     else:
         parts.append('<p class="note">No pictures logged by these runs.</p>')
+    parts.append(_worst(sec))
     if sec.spreads:
         parts.append(
             '<h3>Posterior uncertainty</h3><p class="note">Completions coloured by '
@@ -371,9 +519,12 @@ def build_report(
     frame: str = DEFAULT_FRAME,
     data_version: str | None = None,
     all_variants: bool = False,
+    floors: list[str] | tuple[str, ...] | None = None,
+    tail: float | None = None,
 ) -> tuple[Path, float]:
     """Write ``<out_dir>/<dataset>-report.html`` (and each table's figures beside it), log it to
-    the tables' MLflow runs; return the page and the seconds it took."""
+    the tables' MLflow runs; return the page and the seconds it took. ``floors`` and ``tail``
+    as :func:`~shapebench.boards.leaderboard.build_board`."""
     from shapebench.boards.figures import board_figures, log_board_artifacts, save
 
     start = time.perf_counter()
@@ -386,7 +537,17 @@ def build_report(
     ]
     for split, one in tables:
         board = build_board(
-            tracker, dataset, split, reference, metric, frame, data_version, all_variants, one
+            tracker,
+            dataset,
+            split,
+            reference,
+            metric,
+            frame,
+            data_version,
+            all_variants,
+            one,
+            floors,
+            tail,
         )
         if board is None:
             continue
@@ -400,7 +561,8 @@ def build_report(
             path = md.with_name(f"{md.stem}-grid-{obj.replace('/', '__')}.png")
             path.write_bytes(base64.b64decode(uri.split(",", 1)[1]))
             files.append(path)
-        sections.append(Section(board, figures, grids, spreads, files))
+        worst = worst_pictures(tracker, board)
+        sections.append(Section(board, figures, grids, spreads, files=files, worst=worst))
     if not sections:
         raise ShapebenchError(
             f"no finished runs of dataset {dataset!r} in the {frame} frame in "

@@ -39,6 +39,7 @@ from shapebench.boards.cards import (
     default_metric,
     higher_is_better,
     normalised_card,
+    tail_threshold,
 )
 from shapebench.boards.markdown import render_markdown
 from shapebench.boards.paper import PAPER_METHOD_ORDER, paper_table
@@ -48,13 +49,30 @@ from shapebench.boards.splits import (
     protocols_with_runs,
     splits_with_runs,
 )
-from shapebench.boards.tidy import tidy_csv
+from shapebench.boards.tidy import category_csv, category_csv_path, tidy_csv
 from shapebench.config import Settings
 from shapebench.store.records import card_column
 from shapebench.store.tracking import Tracker, experiment_name
 
 #: The row-label overrides a context protocol adds (registry/variant.py).
 _PROTOCOL_OVERRIDES = {"crop", "protocol", "noise"}
+
+#: The rows a table's others must beat without ``--floor``: handing back the context unchanged
+#: (gauss with sigma 0, labelled ``given-points`` in the sweeps) and retrieving the nearest
+#: training shape (the method ``retrieval``).
+DEFAULT_FLOORS = ("given-points", "retrieval")
+
+
+def _floor_rows(rows: list[Row], names: list[str] | tuple[str, ...]) -> list[str]:
+    """The variant keys of the floor rows: per name, the rows labelled so, else the rows of the
+    method of that name whose only options are the context protocol's (as the reference)."""
+    found: list[str] = []
+    for name in names:
+        hits = [r for r in rows if r.label == name] or [
+            r for r in rows if r.method == name and set(r.overrides) <= _PROTOCOL_OVERRIDES
+        ]
+        found += [r.variant for r in hits if r.variant not in found]
+    return found
 
 
 def _context_words(name: str) -> str:
@@ -127,7 +145,13 @@ def build_board(
     data_version: str | None = None,
     all_variants: bool = False,
     protocol: str = DEFAULT_CONTEXT,
+    floors: list[str] | tuple[str, ...] | None = None,
+    tail: float | None = None,
 ) -> Board | None:
+    """The table of one dataset split and context protocol, or None without runs. ``floors``:
+    the labels (or method names) of the rows every other row is tested against (default
+    :data:`DEFAULT_FLOORS`; those without rows are ignored); ``tail``: the threshold of the tail
+    column in displayed units (default: the metric card's)."""
     exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
     if exp_id is None:
         return None
@@ -187,12 +211,19 @@ def build_board(
     }
     per_obj = per_obj[~skipped].drop(columns="not_applicable")
     scored = board_stats.with_failure_rule(per_obj, higher)
-    raw = board_stats.raw_table(scored)
     scale = card_scale(card)
-    for col in ("mean", "std", "mean_ok", "std_ok", "category_mean"):
+    threshold = tail if tail is not None else tail_threshold(metric, card)
+    raw = board_stats.raw_table(scored, None if threshold is None else threshold / scale, higher)
+    for col in ("mean", "std", "median", "mean_ok", "std_ok", "category_mean"):
         if col in raw:
             raw[col] = raw[col] * scale
+    categories = board_stats.category_table(scored)
+    categories[["mean", "median"]] = categories[["mean", "median"]] * scale
+    worst = board_stats.worst_samples(scored, higher)
+    worst["scored"] = worst["scored"] * scale
     rows = _rows(runs)
+    floor_rows = _floor_rows(rows, DEFAULT_FLOORS if floors is None else tuple(floors))
+    floor_table = board_stats.floor_test(scored, floor_rows, higher) if floor_rows else None
     ref_row = next((r for r in rows if r.label == reference), None)
     protocol_name = runs["_protocol"].iloc[0] if "_protocol" in runs else DEFAULT_CONTEXT
     if ref_row is None and protocol_name != DEFAULT_CONTEXT:
@@ -249,6 +280,11 @@ def build_board(
         runs,
         context=protocol_name,
         not_applicable=not_applicable,
+        floor_rows=floor_rows,
+        floors=floor_table,
+        tail_threshold=threshold,
+        categories=categories,
+        worst=worst,
     )
 
 
@@ -274,9 +310,13 @@ def build_leaderboards(
     data_version: str | None = None,
     all_variants: bool = False,
     protocol: str | None = DEFAULT_CONTEXT,
+    floors: list[str] | tuple[str, ...] | None = None,
+    tail: float | None = None,
 ) -> list[Path]:
     """Write the tables of ``dataset``: one per split (``splits``, or every split with runs)
-    and context protocol (``protocol``, or every protocol with runs when None)."""
+    and context protocol (``protocol``, or every protocol with runs when None), each as
+    Markdown, CSV, per-category CSV (``<table>-categories.csv``) and figures; ``floors`` and
+    ``tail`` as :func:`build_board`."""
     tracker = Tracker(settings)
     if splits is None:
         splits = splits_with_runs(tracker, dataset)
@@ -293,7 +333,17 @@ def build_leaderboards(
     for split, one in tables:
         try:
             board = build_board(
-                tracker, dataset, split, reference, metric, frame, data_version, all_variants, one
+                tracker,
+                dataset,
+                split,
+                reference,
+                metric,
+                frame,
+                data_version,
+                all_variants,
+                one,
+                floors,
+                tail,
             )
         except MetricNotRecorded as exc:
             # Among several tables, one whose runs never computed the metric is skipped (said
@@ -315,8 +365,10 @@ def build_leaderboards(
         md.write_text(render_markdown(board, command, settings.tracking_uri, svgs))
         csv = md.with_suffix(".csv")
         tidy_csv(board).to_csv(csv, index=False)
-        log_board_artifacts(tracker, board, [md, csv, *figures])
-        written += [md, csv, *figures]
+        per_category = category_csv_path(md)
+        category_csv(board).to_csv(per_category, index=False)
+        log_board_artifacts(tracker, board, [md, csv, per_category, *figures])
+        written += [md, csv, per_category, *figures]
     if not written and skipped:
         raise skipped[0]
     if not written:

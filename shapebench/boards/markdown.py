@@ -9,12 +9,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from shapebench.api.metric import MetricCard
 from shapebench.api.protocol import FRAMES, PAPER_FRAME
 from shapebench.boards import stats as board_stats
-from shapebench.boards.board import Board, Row
-from shapebench.boards.cards import card_text, higher_is_better
+from shapebench.boards.board import Board, Row, below_floor, floor_labels
+from shapebench.boards.cards import card_text, higher_is_better, worse_word
 from shapebench.boards.paper import PAPER_METHOD_ORDER
 from shapebench.boards.splits import choices_text
 from shapebench.store.tracking import experiment_name
@@ -22,6 +23,52 @@ from shapebench.store.tracking import experiment_name
 
 def _seeds_text(seeds: tuple[int, ...]) -> str:
     return ("seed " if len(seeds) == 1 else "seeds ") + ", ".join(map(str, seeds))
+
+
+#: The mark of a cell that is not significantly better than the table's floor.
+FLOOR_MARK = "†"
+
+
+def tail_text(board: Board, r: pd.Series) -> str:
+    """The median and (with a tail threshold) the share of samples worse than it, of one raw
+    cell: ``med. 1.07; 18% > 10``."""
+    if "median" not in r or not np.isfinite(r["median"]):
+        return ""
+    text = f"med. {r['median']:.2f}"
+    share = r.get("tail_share", np.nan)
+    if board.tail_threshold is not None and share is not None and np.isfinite(share):
+        sign = "<" if higher_is_better(board.metric, board.card) else ">"
+        text += f"; {100 * share:.0f}% {sign} {board.tail_threshold:g}"
+    return text
+
+
+def card_line(board: Board) -> str:
+    """The metric card in words, with the tail threshold the table reads it at."""
+    text = card_text(board.card)
+    if board.tail_threshold is not None:
+        text += f"; tail threshold {board.tail_threshold:g}" + (
+            f" (x{board.scale:g})" if board.scale != 1 else ""
+        )
+    return text
+
+
+def floor_legend(board: Board) -> str:
+    """What the floor mark means, naming the table's floor rows ("" without floor rows)."""
+    names = floor_labels(board)
+    if not names:
+        return ""
+    which = (
+        f"the floor row `{names[0]}`"
+        if len(names) == 1
+        else "the better (by mean, at that size) of the floor rows "
+        + ", ".join(f"`{n}`" for n in names)
+    )
+    return (
+        f"{FLOOR_MARK}: not significantly better than {which} ({board_stats.TEST_NAME} across "
+        f"the rows at that size, α = {board_stats.ALPHA}; a row is better only with a better "
+        "mean and a corrected p below α); the floor used and the p-values are in the CSV "
+        "(`floor`, `p_vs_floor`, `p_floor_holm`, `below_floor`)."
+    )
 
 
 def _cell(board: Board, row: Row, ctx: int) -> str:
@@ -39,6 +86,12 @@ def _cell(board: Board, row: Row, ctx: int) -> str:
         text = f"**{text}**"
     elif not sig.empty and bool(sig.iloc[0]["tied"]):
         text += " ≈"
+    floor = below_floor(board, row.variant, ctx)
+    if floor is not None and bool(floor["below_floor"]):
+        text += f" {FLOOR_MARK}"
+    tail = tail_text(board, r)
+    if tail:
+        text += f" ({tail})"
     if r["failures"]:
         text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
     return text
@@ -96,7 +149,7 @@ def render_markdown(
         f"MLflow runs of experiment `{experiment_name(board.dataset, board.split)}` "
         f"(id {board.experiment_id}) in `{uri}`; {version}.",
         "",
-        f"**Metric card**: {card_text(board.card)}.",
+        f"**Metric card**: {card_line(board)}.",
         "",
         f"**Protocol**: {board.protocol}; distances in the {FRAMES[board.frame][1]}.",
         "",
@@ -104,7 +157,10 @@ def render_markdown(
         "",
         f"Raw: mean ± std over {samples} of {board.metric}{' ' + scale_txt if scale_txt else ''}"
         " (every object weighs the same; the mean of the per-category means, PCN's 'overall', "
-        "is the CSV's `category_mean`). Normalised: per object "
+        "is the CSV's `category_mean`; each category's mean and median are in the "
+        "`-categories.csv` beside this table). "
+        + _tail_sentence(board, samples)
+        + "Normalised: per object "
         f"divided by `{board.reference}` on the same object{same_seed} and context size, then "
         "mean ± std (the paper's eq. 8).",
         "",
@@ -138,6 +194,7 @@ def render_markdown(
         f"{board_stats.ALPHA}); p-values are in the CSV (`p_vs_best`, `p_holm`). A failed object "
         "scores as the worst successful score of its cell, (n_ok/n ok) says how many succeeded, "
         "and the success-only mean is in the CSV (`mean_ok`).",
+        *([""] + [floor_legend(board)] if floor_legend(board) else []),
         *_not_applicable_lines(board),
         "",
         "Rows (options that differ from the profile's defaults):",
@@ -169,6 +226,19 @@ def render_markdown(
     if board.note:
         lines += ["", f"> {board.note}"]
     return "\n".join(lines) + "\n"
+
+
+def _tail_sentence(board: Board, samples: str) -> str:
+    """What the parenthesis beside each mean says."""
+    pooled = samples.split(" (")[0]
+    text = "Beside each mean (med. ...): the median"
+    if board.tail_threshold is not None:
+        worse = worse_word(higher_is_better(board.metric, board.card))
+        text += (
+            f" and the share of {pooled} {worse} {board.tail_threshold:g}, the tail threshold "
+            "of the metric card (`--tail-threshold` sets another)"
+        )
+    return text + ", under the same failure rule as the mean. "
 
 
 def _not_applicable_lines(board: Board) -> list[str]:

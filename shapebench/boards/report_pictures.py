@@ -89,6 +89,21 @@ def cell_pictures(tracker: Tracker, run_id: str, dst: Path) -> dict[str, dict[st
     return out
 
 
+def fixed_stems(board: Board) -> set[str] | None:
+    """The picture stems of the objects every cell pictures (picked from each cell's object list
+    by :func:`shapebench.evaluation.pictures.picture_objects`), or None when the board has no
+    per-object tables to pick from."""
+    from shapebench.evaluation.pictures import file_stem, picture_objects
+
+    scored = board.scored
+    if scored is None or scored.empty:
+        return None
+    stems: set[str] = set()
+    for _, cell in scored.groupby(["variant", "context", "seed"], sort=False):
+        stems |= {file_stem(o) for o in picture_objects(cell["object"].tolist())}
+    return stems
+
+
 def grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
     """The qualitative grids (one per pictured object, up to ``GRIDS``) and the posterior
     spread pictures of the board's cells."""
@@ -102,10 +117,12 @@ def grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
             dst.mkdir()
             key = (labels.get(run["variant_key"], run["_label"]), int(run["context_size"]))
             cells[key] = cell_pictures(tracker, run["run_id"], dst)
+    fixed = fixed_stems(board)
     objects: dict[str, int] = {}
     for pictures in cells.values():
         for stem in pictures:
-            objects[stem] = objects.get(stem, 0) + 1
+            if fixed is None or stem in fixed:  # a cell's worst object is not a grid's
+                objects[stem] = objects.get(stem, 0) + 1
     # The objects most cells pictured (every cell pictures the same ones; older stores differ).
     chosen = sorted(objects, key=lambda s: (-objects[s], s))[:GRIDS]
     grids, spreads = [], []
@@ -143,6 +160,46 @@ def grids_and_spreads(tracker: Tracker, board: Board) -> tuple[list, list]:
                     )
                 )
     return grids, spreads
+
+
+def worst_pictures(tracker: Tracker, board: Board) -> list[tuple[str, str, int, float, str, str]]:
+    """Per row, its worst sample at the table's largest context size (:attr:`Board.worst`):
+    (label, object, seed, value in displayed units, status, PNG data URI of the picture its
+    cell logged of that object, or "" where there is none: a failed object has no completion,
+    and cells of stores made before 2026-12-03 pictured the split's fixed objects only)."""
+    from shapebench.evaluation.pictures import file_stem, picture_png
+
+    if board.worst is None or board.worst.empty or not board.contexts:
+        return []
+    ctx = max(board.contexts)
+    runs = board.runs if board.runs is not None else pd.DataFrame()
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, row in enumerate(board.rows):
+            hit = board.worst[(board.worst.variant == row.variant) & (board.worst.context == ctx)]
+            if hit.empty:
+                continue
+            obj, seed = str(hit.iloc[0]["object"]), int(hit.iloc[0]["seed"])
+            value = float(hit.iloc[0]["scored"])
+            uri = ""
+            cell = (
+                runs[
+                    (runs["variant_key"] == row.variant)
+                    & (runs["context_size"].astype(int) == ctx)
+                    & (runs["seed"].astype(int) == seed)
+                ]
+                if {"variant_key", "context_size", "seed", "run_id"} <= set(runs.columns)
+                else pd.DataFrame()
+            )
+            if not cell.empty:  # its cell pictured its worst success (the runner does)
+                dst = Path(tmp) / str(i)
+                dst.mkdir()
+                arrays = cell_pictures(tracker, cell.iloc[0]["run_id"], dst).get(file_stem(obj))
+                if arrays is not None and "completion" in arrays:
+                    title = f"{row.label} k={ctx} seed {seed}: {obj} ({value:.2f}, its worst)"
+                    uri = data_uri(picture_png(arrays, title))
+            out.append((row.label, obj, seed, value, str(hit.iloc[0]["status"]), uri))
+    return out
 
 
 def spread_picture(arrays: dict[str, np.ndarray], title: str) -> str:

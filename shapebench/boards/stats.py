@@ -18,6 +18,12 @@ Rules (documented in docs/metrics.md, footnoted under every table):
   other variant is compared with it by a two-sided Wilcoxon signed-rank test over the samples
   both have, and the p-values are Holm-corrected across the comparisons at that size. A variant
   whose corrected p-value is at least ``alpha`` is *tied* with the best.
+* **Floors.** At each context size the floor is the better (by mean) of the floor rows present
+  (returning the context unchanged, retrieving the nearest training shape). Every other row is
+  compared with it by the same test (Holm-corrected across the rows at that size) and is *below
+  the floor* unless its mean is better and its corrected p-value is below ``alpha``.
+* **Tails.** Beside each mean, the median and, where the metric card states a tail threshold,
+  the share of samples worse than it, both under the failure rule.
 """
 
 from __future__ import annotations
@@ -49,9 +55,13 @@ def _mean_std(v: np.ndarray) -> tuple[float, float]:
     return (float(v.mean()), float(v.std(ddof=1)) if len(v) > 1 else 0.0)
 
 
-def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
-    """Per (variant, context): n, n_ok, failures, mean/std under the failure rule (the instance
-    mean: every object weighs the same), the success-only mean_ok/std_ok, and, where ``scored``
+def raw_table(
+    scored: pd.DataFrame, tail: float | None = None, higher_is_better: bool = False
+) -> pd.DataFrame:
+    """Per (variant, context): n, n_ok, failures, mean/std and ``median`` under the failure rule
+    (the instance mean: every object weighs the same), the success-only mean_ok/std_ok,
+    with ``tail`` (a value at the metric's own scale) ``tail_share``: the share of samples
+    worse than it (above it; below it when ``higher_is_better``), and, where ``scored``
     has a ``category`` column, ``category_mean``: the mean of the per-category means under the
     failure rule (every category weighs the same: PCN's and PoinTr's "overall") over
     ``categories`` categories."""
@@ -59,10 +69,19 @@ def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
     for (variant, ctx), g in scored.groupby(["variant", "context"], sort=True):
         ok = g[g["status"] == "ok"]["value"].to_numpy(dtype=float)
         mean_ok, std_ok = _mean_std(ok)
-        row = _summary(variant, ctx, g, g["scored"].dropna().to_numpy(dtype=float))
+        values = g["scored"].dropna().to_numpy(dtype=float)
+        row = _summary(variant, ctx, g, values)
         row.update(
-            mean_ok=mean_ok, std_ok=std_ok, n=len(g), n_ok=len(ok), failures=len(g) - len(ok)
+            median=float(np.median(values)) if len(values) else np.nan,
+            mean_ok=mean_ok,
+            std_ok=std_ok,
+            n=len(g),
+            n_ok=len(ok),
+            failures=len(g) - len(ok),
         )
+        if tail is not None:
+            worse = values < tail if higher_is_better else values > tail
+            row["tail_share"] = float(worse.mean()) if len(values) else np.nan
         if "category" in g:
             per_category = g.dropna(subset=["scored"]).groupby("category")["scored"].mean()
             row.update(
@@ -74,7 +93,55 @@ def raw_table(scored: pd.DataFrame) -> pd.DataFrame:
 
 
 #: The columns of an empty raw table (every object of every row without a value).
-RAW_COLUMNS = ["variant", "label", "context", "mean", "std", "mean_ok", "std_ok", "n", "n_ok"]
+RAW_COLUMNS = [
+    "variant",
+    "label",
+    "context",
+    "mean",
+    "std",
+    "median",
+    "mean_ok",
+    "std_ok",
+    "n",
+    "n_ok",
+]
+
+
+def category_table(scored: pd.DataFrame) -> pd.DataFrame:
+    """Per (variant, context, category): ``mean`` and ``median`` under the failure rule over the
+    ``n`` samples of the category (empty without a ``category`` column): the per-category means
+    that :func:`raw_table`'s ``category_mean`` averages."""
+    columns = ["variant", "label", "context", "category", "mean", "median", "n"]
+    if "category" not in scored or scored.empty:
+        return pd.DataFrame(columns=columns)
+    usable = scored.dropna(subset=["scored"])
+    grouped = usable.groupby(["variant", "context", "category"], sort=True)
+    out = grouped.agg(
+        label=("label", "first"),
+        mean=("scored", "mean"),
+        median=("scored", "median"),
+        n=("scored", "size"),
+    ).reset_index()
+    out["context"] = out["context"].astype(int)
+    return out[columns]
+
+
+def worst_samples(scored: pd.DataFrame, higher_is_better: bool = False) -> pd.DataFrame:
+    """Per (variant, context): the sample with the worst value under the failure rule (the
+    highest; the lowest when ``higher_is_better``), ties to the first object and seed:
+    ``variant``, ``context``, ``object``, ``seed``, ``scored``, ``status``."""
+    columns = ["variant", "context", "object", "seed", "scored", "status"]
+    usable = scored.dropna(subset=["scored"])
+    if usable.empty:
+        return pd.DataFrame(columns=columns)
+    ordered = usable.sort_values(
+        ["variant", "context", "scored", "object", "seed"],
+        ascending=[True, True, higher_is_better, True, True],
+        kind="stable",
+    )
+    return (
+        ordered.groupby(["variant", "context"], sort=True).head(1)[columns].reset_index(drop=True)
+    )
 
 
 def _summary(variant: str, ctx: int, group: pd.DataFrame, values: np.ndarray) -> dict:
@@ -170,6 +237,55 @@ def holm(pvalues: list[float]) -> list[float]:
         running = max(running, min(1.0, (m - rank) * pvalues[i]))
         adjusted[i] = running
     return adjusted.tolist()
+
+
+#: The columns of :func:`floor_test`.
+FLOOR_COLUMNS = ["variant", "context", "floor", "p_vs_floor", "p_floor_holm", "below_floor"]
+
+
+def floor_test(
+    scored: pd.DataFrame,
+    floors: list[str],
+    higher_is_better: bool = False,
+    alpha: float = ALPHA,
+) -> pd.DataFrame:
+    """Per (variant, context) of every row but the floor: ``floor`` (the variant key of the
+    better floor at that size: of the variants ``floors`` with a mean there, the one with the
+    better mean), ``p_vs_floor`` (the paired test over the samples both have, as
+    :func:`significance`), ``p_floor_holm`` (Holm-corrected across the rows at that size) and
+    ``below_floor``: the row is not significantly better than the floor (its mean is not better,
+    or its corrected p-value is at least ``alpha``). Empty when no floor has a mean."""
+    rows = []
+    for ctx, g in scored.groupby("context", sort=True):
+        means = g.groupby("variant")["scored"].mean().dropna()
+        present = means[means.index.isin(floors)]
+        if present.empty:
+            continue
+        floor = present.idxmax() if higher_is_better else present.idxmin()
+        floor_values = g[g["variant"] == floor].set_index(KEYS)["scored"]
+        tested, pvals, better = [], [], []
+        for variant in sorted(means.index):
+            if variant == floor:
+                continue
+            values = g[g["variant"] == variant].set_index(KEYS)["scored"]
+            both = pd.concat([floor_values, values], axis=1, join="inner").dropna()
+            tested.append(variant)
+            pvals.append(paired_p(both.iloc[:, 0].to_numpy(), both.iloc[:, 1].to_numpy()))
+            better.append(
+                means[variant] > means[floor] if higher_is_better else means[variant] < means[floor]
+            )
+        for variant, p, adj, is_better in zip(tested, pvals, holm(pvals), better, strict=True):
+            rows.append(
+                {
+                    "variant": variant,
+                    "context": int(ctx),
+                    "floor": floor,
+                    "p_vs_floor": p,
+                    "p_floor_holm": adj,
+                    "below_floor": not (is_better and adj < alpha),
+                }
+            )
+    return pd.DataFrame(rows, columns=FLOOR_COLUMNS)
 
 
 def significance(

@@ -17,6 +17,40 @@ from shapebench.cli.app import (
 )
 
 
+def _floor_and_tail_options(command):
+    """``--floor`` and ``--tail-threshold``, shared by ``leaderboard`` and ``report``."""
+    command = click.option(
+        "--tail-threshold",
+        "tail",
+        type=float,
+        default=None,
+        metavar="VALUE",
+        help="Beside each mean the table shows the median and the share of (object, seed) "
+        "pairs worse than this value (above it; below it for higher-is-better metrics), in "
+        "the table's displayed units and frame (chamfer-l2: x1000) [default: the metric "
+        "card's tail threshold, chamfer-l2 10 in the unit-radius frame; none for metrics "
+        "whose card states none].",
+    )(command)
+    return click.option(
+        "--floor",
+        "floors",
+        multiple=True,
+        metavar="LABEL",
+        help="A floor row (repeatable): a row label, or a method run with its defaults. Per "
+        "context size the better floor present is the floor, and each other row not "
+        "significantly better than it (paired Wilcoxon, Holm-corrected, alpha 0.05) is "
+        "marked with a dagger. [default: given-points and retrieval, those with rows; "
+        "--floor none: no floor marks]",
+    )(command)
+
+
+def _floors(given: tuple[str, ...]) -> list[str] | None:
+    """The floors asked for: None for the defaults, [] for ``--floor none``."""
+    if not given:
+        return None
+    return [] if list(given) == ["none"] else list(given)
+
+
 @cli.command()
 @click.option("--dataset", "-d", required=True, help="Dataset whose runs to tabulate.")
 @click.option(
@@ -59,6 +93,7 @@ from shapebench.cli.app import (
     show_default=True,
     help="Where the .md and .csv files are written.",
 )
+@_floor_and_tail_options
 @context_options
 @store_options
 def leaderboard(
@@ -70,6 +105,8 @@ def leaderboard(
     data_version,
     all_variants,
     out_dir,
+    floors,
+    tail,
     context_protocol,
     crop_fraction,
     context_noise,
@@ -80,10 +117,14 @@ def leaderboard(
 ) -> None:
     """Build raw and normalised Chamfer tables for DATASET from the runs in MLflow.
 
-    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3.
+    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3,
+    and <dataset>-<split>-categories.csv (each category's mean and median).
     A row is one method variant (options, code, checkpoint, protocol), labelled like
     gauss[sigma=0.05]; per context size the best row is bold and rows statistically tied with
-    it (paired Wilcoxon over the same objects, Holm-corrected) are marked. The paper's own
+    it (paired Wilcoxon over the same objects, Holm-corrected) are marked, and rows not
+    significantly better than the floor (returning the context unchanged, given-points, or
+    retrieving the nearest training shape, retrieval) carry a dagger. Beside each mean: the
+    median and the share of pairs worse than the card's tail threshold. The paper's own
     figures (ShapeNet, ICL-NUIM) appear only beside a --frame unit-diameter table.
 
     \b
@@ -118,6 +159,8 @@ def leaderboard(
         data_version,
         all_variants,
         protocol,
+        _floors(floors),
+        tail,
     ):
         click.echo(f"wrote {path}")
 
@@ -163,6 +206,7 @@ def leaderboard(
     show_default=True,
     help="Where the page and its figures are written.",
 )
+@_floor_and_tail_options
 @store_options
 def report(
     dataset,
@@ -173,6 +217,8 @@ def report(
     data_version,
     all_variants,
     out_dir,
+    floors,
+    tail,
     profile,
     tracking_uri,
     cache_dir,
@@ -180,10 +226,13 @@ def report(
 ) -> None:
     """Write one self-contained HTML page for DATASET from the runs in MLflow.
 
-    Per split: the winner at each context size and the rows tied with it, the raw and
-    normalised tables (sortable), cost (test time per object, training device-hours), the
-    metric card, Chamfer against context size and accuracy against cost, the qualitative grids
-    (rows = methods, columns = context sizes), posterior-spread pictures, and provenance.
+    Per split: the winner at each context size and the rows tied with it, the rows not better
+    than the floor (given-points, retrieval; --floor), the raw and normalised tables
+    (sortable; median and tail share beside each mean), per-category means, cost (test time
+    per object, training device-hours), the metric card, Chamfer against context size and
+    accuracy against cost, the qualitative grids (rows = methods, columns = context sizes),
+    each row's worst object at the largest context size, posterior-spread pictures, and
+    provenance.
     Written as leaderboards/<dataset>-report.html (open it in any browser; it fetches
     nothing) and logged to MLflow beside the leaderboard.
 
@@ -208,6 +257,8 @@ def report(
         frame,
         data_version,
         all_variants,
+        _floors(floors),
+        tail,
     )
     click.echo(f"wrote {page} in {seconds:.1f} s (open it in a browser)")
 

@@ -30,6 +30,7 @@ from shapebench.evaluation.plan import RunPlan, cell_record, planned_cells
 from shapebench.evaluation.results import CellResult
 from shapebench.evaluation.scoring import score, summarize
 from shapebench.hashing import stable_hash
+from shapebench.progress import progress_bar
 from shapebench.store import presentation
 from shapebench.store.failures import store_failure
 from shapebench.store.tracking import Tracker, experiment_name, flatten
@@ -42,10 +43,20 @@ def _cached(split: str, size: int, seed: int, done: Any, exp_id: str, cfg: dict)
     )
 
 
-def _progress(total: int, desc: str, quiet: bool):
-    from shapebench.progress import progress_bar
+def _judging_metric(plan: RunPlan) -> Any:
+    """The metric that names a cell's worst object: the dataset's default, else the first."""
+    by_name = {m.name: m for m in plan.metrics}
+    return by_name.get(plan.dataset.default_metric) or (plan.metrics[0] if plan.metrics else None)
 
-    return progress_bar(total, desc, quiet)
+
+def _badness(row: dict[str, Any], metric: Any) -> float | None:
+    """How bad an object's score is by ``metric`` (larger: worse), None without a value."""
+    if metric is None:
+        return None
+    value = row.get(metric.name)
+    if value is None or not np.isfinite(value):
+        return None
+    return -float(value) if metric.higher_is_better else float(value)
 
 
 @dataclass(frozen=True)
@@ -292,9 +303,13 @@ class Runner:
             pictured = set(picture_objects([r.id for r in refs]))
             truths: dict[str, np.ndarray] = {}
             spare: list = []
+            # The cell's worst success by the dataset's metric is pictured too, when it is not
+            # a fixed one (one completion kept aside): the report shows each row's failures.
+            judge = _judging_metric(plan)
+            worst: tuple[float, Any, Any, np.ndarray] | None = None
             label = f"{plan.method.name} {plan.dataset.name}/{split} k={size}"
             chunk = max(1, int(getattr(method, "batch_size", 1)))
-            with _progress(len(refs), label, plan.quiet) as bar:
+            with progress_bar(len(refs), label, plan.quiet) as bar:
                 for start in range(0, len(refs), chunk):
                     ready = []  # (row, data, ctx) of the objects that could be loaded
                     for ref in refs[start : start + chunk]:
@@ -327,7 +342,17 @@ class Runner:
                                 truths[ctx.ref.id] = data.gt_points
                         elif completion is not None and len(spare) < EXAMPLE_PLYS:
                             spare.append((ctx, completion))  # .ply only, if pictured ones fail
+                        badness = _badness(row, judge) if completion is not None else None
+                        if badness is not None and (worst is None or badness > worst[0]):
+                            # Kept only while unpictured: a pictured worst needs no extra copy.
+                            keep = ctx.ref.id not in pictured
+                            worst = (badness, ctx, completion if keep else None, data.gt_points)
                         bar.update()
+            if worst is not None and worst[2] is not None:
+                _, ctx, completion, gt = worst
+                examples.append((ctx, completion))
+                if len(gt):
+                    truths[ctx.ref.id] = gt
             table = pd.DataFrame(rows)
             summary = summarize(table, plan.metrics)
             # Metrics that raised: the cell is not finished for them, the next run computes it.

@@ -12,7 +12,7 @@ from shapebench.api import options as opts
 from shapebench.api.dataset import Dataset
 from shapebench.api.errors import ConfigError, DataNotFoundError
 from shapebench.api.method import Method
-from shapebench.api.metric import Metric, expand_presets
+from shapebench.api.metric import PRESETS, Metric
 from shapebench.config import Settings, plugin_overrides
 from shapebench.registry.discovery import Registration, Registry
 
@@ -145,6 +145,17 @@ def resolve_dataset(
         raise DataNotFoundError(f"data root {root} does not exist")
     dataset = cls(options, settings.cache_dir, Path(root) if root else None)
     return dataset
+
+
+def expand_presets(names: list[str], installed: list[str]) -> list[str]:
+    """``names`` with every preset (:data:`shapebench.api.metric.PRESETS`) replaced by its
+    metrics (installed names win over presets), each metric once, in order."""
+    out: list[str] = []
+    for name in names:
+        for metric in (name,) if name in installed else PRESETS.get(name, (name,)):
+            if metric not in out:
+                out.append(metric)
+    return out
 
 
 def resolve_metrics(

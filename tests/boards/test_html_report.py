@@ -9,18 +9,20 @@ picture in the report.
 
 from __future__ import annotations
 
+import base64
 import io
 import re
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import trimesh
 from browser_support import keep_screenshot, launch_chromium
 from conftest import TINY, Shapebench
 from matplotlib.image import imread
 
-from shapebench.evaluation.pictures import is_blank
+from shapebench.evaluation.pictures import file_stem, is_blank, picture_objects
 
 pytestmark = pytest.mark.slow  # runs the CLI, MLflow and a browser
 
@@ -68,12 +70,17 @@ def test_every_method_pictures_the_same_objects(store, tmp_path):
         for k, run in _cells(store, method).items():
             rid = run.info.run_id
             names = sorted(a.path for a in client.list_artifacts(rid, "pictures"))
-            seen[(method, k)] = names
             print(
                 f"{method} k={k}: pictures logged in {run.data.metrics['pictures_seconds']:.2f} s"
             )
-            # Four novel objects: the first, one in the middle and the last are pictured.
-            assert len([n for n in names if n.endswith(".png")]) == 3
+            # Four novel objects: the first, one in the middle and the last are pictured, and
+            # the cell's worst success when it is not one of them.
+            table = client.download_artifacts(rid, "per_object.csv", str(tmp_path / rid))
+            ids = pd.read_csv(table)["object"].tolist()  # every object, in the split's order
+            fixed = {f"pictures/{file_stem(o)}.png" for o in picture_objects(ids)}
+            pngs = {n for n in names if n.endswith(".png")}
+            assert len(fixed) == 3 and fixed <= pngs and len(pngs) <= 4
+            seen[(method, k)] = sorted(fixed)
             dst = tmp_path / f"{method}-{k}"
             dst.mkdir()
             folder = Path(client.download_artifacts(rid, "pictures", str(dst)))
@@ -88,7 +95,7 @@ def test_every_method_pictures_the_same_objects(store, tmp_path):
                 assert np.array_equal(arrays["context"], by_object[obj])
                 assert arrays["ground_truth"].shape == (2000, 3)  # -D gt_points=2000
             plys = {Path(a.path).stem for a in client.list_artifacts(rid, "completions")}
-            assert plys == {Path(n).stem for n in names if n.endswith(".png")}
+            assert plys == {Path(n).stem for n in pngs}
     assert len({tuple(v) for v in seen.values()}) == 1, seen
 
 
@@ -184,6 +191,34 @@ def test_report_and_its_figures_are_logged_to_mlflow(store):
     assert "shapebench 0." in page and "mlflow " in page
 
 
+def test_each_rows_worst_object_is_named_and_pictured_where_its_cell_pictured_it(store):
+    """Per row its worst (object, seed) at the largest size, read from the per-object tables,
+    and pictured from the cell's own picture of it."""
+    from shapebench.boards.leaderboard import build_board
+    from shapebench.boards.report_pictures import worst_pictures
+    from shapebench.config import make_settings
+    from shapebench.store.tracking import Tracker
+
+    settings = make_settings(store.tracking_uri, store.cache, "quick", store.workspace)
+    tracker = Tracker(settings)
+    board = build_board(tracker, "synthetic", "novel", "gauss", None)
+    worst = worst_pictures(tracker, board)
+    assert [w[0] for w in worst] == [r.label for r in board.rows]
+    pictured = 0
+    for (_, obj, seed, value, status, uri), row in zip(worst, board.rows, strict=True):
+        cell = board.scored[(board.scored.variant == row.variant) & (board.scored.context == 100)]
+        assert value == pytest.approx(cell["scored"].max() * board.scale)
+        assert cell.set_index(["object", "seed"]).loc[(obj, seed), "scored"] == cell["scored"].max()
+        assert status == "ok"
+        # Every cell pictures its worst success (the fixed objects' or one more).
+        pictured += 1
+        png = base64.b64decode(uri.split(",", 1)[1])
+        assert not is_blank(png)
+    page = (store.workspace / "leaderboards" / "synthetic-report.html").read_text()
+    assert "Worst objects at 100 points" in page
+    assert page.count('alt="worst object of ') == pictured
+
+
 class _Primitives:
     """A tiny mesh dataset of four real primitives (one novel category)."""
 
@@ -253,8 +288,13 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     assert [c.metrics["failures"] for c in cells] == [1.0, 1.0]
     client = Tracker(settings).client
     names = {a.path for a in client.list_artifacts(cells[0].run_id, "pictures")}
-    # Objects 0, 2 and 3 of [box, ball, can, pill] are pictured; the can failed.
-    assert names == {f"pictures/{o}.{ext}" for o in ("box", "pill") for ext in ("png", "npz")}
+    # Objects 0, 2 and 3 of [box, ball, can, pill] are pictured; the can failed. The ball is
+    # pictured too when it is the cell's worst success (it is not a fixed object).
+    fixed = {f"pictures/{o}.{ext}" for o in ("box", "pill") for ext in ("png", "npz")}
+    table = pd.read_csv(client.download_artifacts(cells[0].run_id, "per_object.csv", str(tmp_path)))
+    ok = table[table["status"] == "ok"].set_index("object")["chamfer-l2"]
+    extra = {f"pictures/ball.{ext}" for ext in ("png", "npz")} if ok.idxmax() == "ball" else set()
+    assert names == fixed | extra, table
     # The .ply examples are filled up with another success (the ball), not left at two.
     plys = {a.path for a in client.list_artifacts(cells[0].run_id, "completions")}
     assert {f"completions/{o}.ply" for o in ("box", "pill", "ball")} <= plys

@@ -4,7 +4,6 @@ posterior spread as colour, and cheap enough to draw for every cell."""
 from __future__ import annotations
 
 import io
-import time
 
 import numpy as np
 import pytest
@@ -120,18 +119,16 @@ def test_picture_arrays_keep_what_the_grid_needs_at_bounded_size():
     assert all(a.dtype == np.float32 for a in arrays.values())
 
 
-def test_a_picture_costs_well_under_a_second():
+def test_a_picture_with_a_spread_panel_is_drawn():
+    """What it costs: benchmarks/bench_pictures.py (no timing is asserted here)."""
     gt = _mug()
     arrays = picture_arrays(gt[:1000], gt[::2], gt, spread=np.abs(gt[::2, 1]))
-    picture_png(arrays)  # warm up (font cache, colour maps)
-    times = []
-    for _ in range(3):
-        start = time.perf_counter()
-        png = picture_png(arrays, "timed")
-        times.append(time.perf_counter() - start)
-    print(f"picture with spread panel: median {np.median(times):.3f} s")
+    png = picture_png(arrays, "with spread")
     assert not is_blank(png)
-    assert np.median(times) < 1.0
+    assert (
+        _pixels(png).shape[1]
+        > _pixels(picture_png(picture_arrays(gt[:1000], gt[::2], gt))).shape[1]
+    )
 
 
 def test_qualitative_grid_is_methods_by_context_sizes():

@@ -251,6 +251,35 @@ def test_a_failed_object_is_recorded_and_the_others_are_scored(settings):
     assert stored.metric_errors == frozenset()  # the method failed, no metric did
 
 
+def test_a_cell_pictures_its_worst_success_beside_the_fixed_objects(settings):
+    """The fixed objects are pictured in every cell; the worst scored object of the cell is too,
+    so a report can show a row's failures (a failed object has no completion to picture)."""
+    from shapebench.evaluation.pictures import file_stem, picture_objects
+
+    plan = _plan(settings)
+    ids = [ref.id for ref in plan.dataset.objects("novel")]
+    fixed = set(picture_objects(ids))
+    others = [i for i in ids if i not in fixed]
+    assert others, "the tiny split pictures every object: nothing to test"
+    bad = others[-1]
+
+    class Scrambled(plan.method.cls):
+        """Gauss, except that one unpictured object gets its points thrown far away."""
+
+        def complete(self, context, n_points):
+            completion = super().complete(context, n_points)
+            if context.ref.id == bad:
+                completion.points = completion.points * 5.0
+            return completion
+
+    tracker = Tracker(settings)
+    [cell] = Runner(tracker, echo=lambda _: None).run(plan, lambda: Scrambled(plan.method.options))
+    listed = {a.path for a in tracker.client.list_artifacts(cell.run_id, "pictures")}
+    expected = {f"pictures/{file_stem(i)}.png" for i in {*fixed, bad}}
+    assert expected <= listed
+    assert not {f"pictures/{file_stem(i)}.png" for i in set(others) - {bad}} & listed
+
+
 def test_failure_reasons_are_ranked_by_how_many_objects_share_them():
     table = pd.DataFrame(
         {

@@ -46,6 +46,9 @@ def test_threads_sets_the_torch_threads_of_workers_and_of_the_inline_sweep(shape
     """``--threads 1`` with one local worker (which would get every core) and inline: the cell
     runs record the thread count they ran with; 0 is refused in one line."""
     sb = shapebench
+    # Every core by default, whatever share of them the test worker's own torch has (conftest).
+    cores = str(os.cpu_count() or 1)
+    sb.extra_env.update(OMP_NUM_THREADS=cores, MKL_NUM_THREADS=cores)
     sweep = tmp_path / "sweep.yaml"
     sweep.write_text(GAUSS_SWEEP)
     res = sb("sweep", str(sweep), "-q", "--launcher", "local", "-j", "1", "--threads", "1")

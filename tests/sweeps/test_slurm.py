@@ -30,9 +30,17 @@ def cluster(tmp_path_factory):
     c.stop()
 
 
+@pytest.fixture
+def idle_cluster(cluster):
+    """The module's cluster, its node idle: each test starts after the last one's jobs are gone."""
+    cluster.wait_idle()
+    return cluster
+
+
 def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(
-    shapebench, cluster, tmp_path, monkeypatch
+    shapebench, idle_cluster, tmp_path, monkeypatch
 ):
+    cluster = idle_cluster
     monkeypatch.setenv("SLURM_CONF", str(cluster.conf))
     sb = shapebench
     body = SWEEP.replace("epochs: 60", "epochs: 4")
@@ -72,7 +80,7 @@ def test_slurm_sweep_trains_once_on_two_ranks_and_logs_each_cell_once(
 
 
 def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
-    shapebench, cluster, tmp_path, monkeypatch
+    shapebench, idle_cluster, tmp_path, monkeypatch
 ):
     """SLURM's pre-emption warning (SIGUSR1, as `--signal=USR1@90` sends it): the training
     writes its checkpoint, its job is requeued by rank 0, and the requeued job resumes."""
@@ -81,6 +89,7 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
 
     from processes import wait_for
 
+    cluster = idle_cluster
     monkeypatch.setenv("SLURM_CONF", str(cluster.conf))
     sb = shapebench
     sweep = tmp_path / "sweep.yaml"
@@ -101,14 +110,24 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
     job = next(j for j in manifest if j["kind"] == "training")
     jid, log = job["job_id"], job["stderr"]
     ckpts = sb.workspace / "checkpoints"
-    wait_for(lambda: list(ckpts.glob("*/*/last.ckpt")), timeout=300, what="a first checkpoint")
+    wait_for(
+        lambda: list(ckpts.glob("*/*/last.ckpt")),
+        timeout=300,
+        what="a first checkpoint",
+        explain=lambda: cluster.describe(jid, log),
+    )
     cluster.run("scancel", "--signal=USR1", jid)
 
     def requeued() -> bool:
         out = cluster.run("squeue", "-h", "-j", jid, "-o", "%T %r", check=False)
         return "requeueing job" in Path(log).read_text() and out.startswith("PENDING")
 
-    wait_for(requeued, timeout=120, what="the training job requeued")
+    wait_for(
+        requeued,
+        timeout=120,
+        what="the training job requeued",
+        explain=lambda: cluster.describe(jid, log),
+    )
 
     def node_idle() -> bool:
         return cluster.run("sinfo", "-h", "-o", "%T", check=False).split() == ["idle"]
@@ -118,12 +137,17 @@ def test_a_preempted_training_stops_after_its_step_requeues_and_resumes(
     # slurmd refuses a launch whose credential is not newer, to the second, than the kill of
     # the job's previous instance ("Job N already killed, do not launch batch job"), and the
     # cell then fails; that race reddened one CI run.
-    wait_for(node_idle, timeout=120, what="the node idle after the kill")
+    wait_for(
+        node_idle,
+        timeout=120,
+        what="the node idle after the kill",
+        explain=lambda: cluster.describe(jid, log),
+    )
     time.sleep(2.5)
     cluster.run("scontrol", "update", f"JobId={jid}", "StartTime=now")
     deadline = time.monotonic() + 600
     while "1 cells: 1 finished" not in (status := sb("sweep", str(sweep), "--status").stdout):
-        assert time.monotonic() < deadline, status + cluster.logs()
+        assert time.monotonic() < deadline, status + cluster.describe(jid, log)
         time.sleep(5)
     text = Path(log).read_text()
     assert "SIGUSR1: stopping after the current optimiser step" in text
