@@ -167,8 +167,8 @@ def main(argv: list[str] | None = None) -> None:
             name, DATASET, args.profile, seed, Path(args.workspace), options=options
         )
         method, key = training.method, training.key
-        if not method.cls.trains:
-            continue
+        if not method.cls.trains or method.cls.fit_ignores_trainer:
+            continue  # nothing to ship: such a fit (an index) is built by the first run
         family = method.cls.checkpoint_family or method.name
         if key in done_keys.setdefault(family, set()):
             continue  # msc-noopt: msc's checkpoint

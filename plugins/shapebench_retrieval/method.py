@@ -12,29 +12,29 @@ method is not told the context's category, since a real user's context carries n
 category is read only afterwards, for the ``same_category`` diagnostic in the per-object table).
 
 "Training" builds the index of the training shapes (:mod:`shapebench_retrieval.index`), which
-is the method's checkpoint. So the checkpoint key, and through it every cell key, holds the
-training data's fingerprint: another training set (``-D train_per_category=...``) is another
-index and other cells, while options that pick test objects only (``test_per_category``) reuse
-the index. The key also holds the trainer seed, which seeds the subsample of each shape's index
-points. The index reads each retrieved ground truth back from the dataset's cache; it holds
-``index_points`` points per shape for the search, one KD-tree each, searched exactly with
-early termination (ties: the lowest index in the ``train`` split's order).
+is the method's checkpoint: a computation on the training data that no trainer setting changes
+(``fit_ignores_trainer``). So the checkpoint key, and through it every cell key, holds the
+training data's fingerprint and the option ``index_points``, but no seed, budget, precision or
+device count: one index serves every seed, another training set (``-D train_per_category=...``)
+is another index and other cells, and options that pick test objects only
+(``test_per_category``) reuse the index. The index is self-contained (the training shapes' ground
+truths are in it), holds ``index_points`` points per shape for the search, one KD-tree each,
+searched exactly with early termination (ties: the lowest index in the ``train`` split's order).
 """
 
 from __future__ import annotations
 
+import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from shapebench.api.method import Method, TrainingContext
 from shapebench.api.options import option
 from shapebench.api.types import Completion, Context
-
-#: The checkpoint's file name in the training's folder.
-INDEX_FILE = "index.npz"
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,9 @@ class Retrieval(Method):
     )
     #: Its "training" builds the index of the training shapes: the checkpoint, keyed on them.
     trains = True
+    #: ... from the data alone (32 s at standard once the objects are prepared): one index for
+    #: every seed and trainer, and no shipped reference (the first run that needs it builds it).
+    fit_ignores_trainer = True
     Options = RetrievalOptions
     #: The search runs on this KD-tree, and the index's subsample on these seeds.
     code_modules: ClassVar[tuple[str, ...]] = (
@@ -69,17 +72,29 @@ class Retrieval(Method):
         self.index = None
 
     def fit(self, ctx: TrainingContext) -> Path:
-        from shapebench_retrieval.index import build_index, save_index
+        from shapebench_retrieval.index import build_index
 
-        arrays = build_index(
-            ctx.dataset, self.options.index_points, ctx.trainer.seed, quiet=ctx.quiet
-        )
-        return save_index(Path(ctx.workdir) / INDEX_FILE, arrays)
+        built = build_index(ctx.dataset, self.options.index_points, Path(ctx.workdir), ctx.quiet)
+        summary = {
+            "wall_seconds": built.seconds,
+            "device": "cpu x1",  # one process reads the objects and builds the index
+            "devices": 1,
+            "device_hours": built.seconds / 3600.0,
+            "training_shapes": built.shapes,
+            "epochs": 0,
+            "optimizer_steps": 0,
+            "final": {},
+        }
+        # Beside the checkpoint, as Lightning trainings leave theirs (benchmarks/ladder.py).
+        (Path(ctx.workdir) / "summary.json").write_text(json.dumps(summary, indent=1))
+        if ctx.run_id:
+            _log_cost(ctx.tracking_uri, ctx.run_id, summary)
+        return built.path
 
     def load_checkpoint(self, path: Path) -> None:
         from shapebench_retrieval.index import RetrievalIndex
 
-        self.index = RetrievalIndex.load(Path(path))
+        self.index = RetrievalIndex.load(Path(path), self.options.index_points)
 
     def complete(self, context: Context, n_points: int) -> Completion:
         if self.index is None:
@@ -98,3 +113,24 @@ class Retrieval(Method):
             "searched": float(searched),  # shapes whose score was computed to the end
         }
         return Completion(points=gt[rows], info=info)
+
+
+def _log_cost(tracking_uri: str, run_id: str, summary: dict[str, Any]) -> None:
+    """The index build's cost on its MLflow training run, as a Lightning training logs its
+    summary (:func:`shapebench.train.summary.report_summary`): the leaderboard's cost columns
+    read ``summary/*`` and the tag ``training_device``. No epochs or optimiser steps: there are
+    none, and the board then shows the wall time alone."""
+    from mlflow.entities import Metric
+
+    from shapebench.store.records import TRAINING_DEVICE_TAG
+    from shapebench.store.tracking import open_client
+
+    client = open_client(tracking_uri)
+    now = int(time.time() * 1000)
+    metrics = {
+        "summary/wall_seconds": summary["wall_seconds"],
+        "summary/device_hours": summary["device_hours"],
+        "summary/training_shapes": summary["training_shapes"],
+    }
+    client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items()])
+    client.set_tag(run_id, TRAINING_DEVICE_TAG, summary["device"])

@@ -88,6 +88,14 @@ class Method(ABC):
         Methods that do not train need only the context, which always has points and normals.
     trains:
         Whether :meth:`fit` must run before :meth:`complete`.
+    fit_ignores_trainer:
+        Whether :meth:`fit` computes its checkpoint from the training data and the method's
+        options alone: no trainer setting (seed, epoch or step budget, precision, devices)
+        changes it. Such a "training" is a computation on the data (an index, a lookup table),
+        not an optimisation: its checkpoint key and leaderboard row leave the trainer out, so
+        one fit serves every seed; it is built by the first run that needs it, with no shipped
+        reference expected. A method that draws random numbers in ``fit`` seeds them from the
+        data, never from ``ctx.trainer.seed``.
     Options:
         A frozen dataclass of options with defaults (see :mod:`shapebench.api.options`).
     """
@@ -97,6 +105,7 @@ class Method(ABC):
     description: ClassVar[str] = ""
     supervision: ClassVar[frozenset[Supervision]] = frozenset()
     trains: ClassVar[bool] = False
+    fit_ignores_trainer: ClassVar[bool] = False
     Options: ClassVar[type] = NoOptions
     #: Methods with the same family share checkpoints (``msc`` and ``msc-noopt`` differ only at
     #: completion time). Options marked ``metadata={"completion_only": True}`` do not change the

@@ -52,7 +52,13 @@ def training_identity(method: ResolvedMethod, trainer: TrainerOptions) -> dict[s
     """The trainer settings that change the trained weights; the accelerator does not count
     (a checkpoint trained on a GPU serves a CPU evaluation). The budget is the method's epochs
     or, when it has a step budget, its optimiser steps (an epoch is 9 steps on 66 shapes and
-    3,750 on 30,000: a step budget costs the same at any training-set size)."""
+    3,750 on 30,000: a step budget costs the same at any training-set size).
+
+    Empty for a method whose fit no trainer setting changes (``fit_ignores_trainer``, see
+    :class:`~shapebench.api.method.Method`: an index of the training data): its key is then the
+    same for every seed and trainer, and its leaderboard row shows none of their settings."""
+    if method.cls.fit_ignores_trainer:
+        return {}
     identity: dict[str, Any] = {
         "epochs": trainer.max_epochs or getattr(method.options, "epochs", None),
         "precision": trainer.precision,
@@ -94,7 +100,8 @@ def checkpoint_key(
     identity: dict[str, Any] | None = None,
 ) -> str:
     """Everything that changes the trained weights: the method's training options and code, the
-    training data, and the trainer settings of :func:`training_identity` (the seed among them).
+    training data, and the trainer settings of :func:`training_identity` (the seed among them;
+    none for a method whose fit ignores the trainer).
     ``identity``: that training identity, when the caller has computed it already."""
     return stable_hash(
         {
