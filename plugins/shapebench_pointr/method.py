@@ -7,9 +7,10 @@ Network in :mod:`shapebench_pointr.network`: point proxies from a DGCNN grouper,
 geometry-aware transformer encoder-decoder that predicts the missing proxies' centres and
 features, and a FoldingNet head folding 64 points around each; the input is appended to the
 output. Loss: the halved Chamfer-L1 (PoinTr's ``ChamferDistanceL1``) of the coarse cloud plus that
-of the dense one, 1:1. Optimiser: AdamW, lr 5e-4, weight decay 5e-4 except on biases and norm
-weights, the lr multiplied by 0.9 every ``lr_decay_steps`` (official: every 21 epochs) down to
-0.02 of it, gradient norm clipped at 10.
+of the dense one, 1:1 (``fine_loss=folded``, an ablation: the dense one of the folded points
+alone, without the input's copy). Optimiser: AdamW, lr 5e-4, weight decay 5e-4 except on biases
+and norm weights, the lr multiplied by 0.9 every ``lr_decay_steps`` (official: every 21 epochs)
+down to 0.02 of it, gradient norm clipped at 10.
 
 As PCN here, it is trained with the benchmark's context sizes as inputs (each batch draws one):
 the field trains and tests on 2,048 input points; a 50-point context then gives 50 proxies
@@ -29,6 +30,10 @@ from shapebench.train.point_cloud_method import PointCloudMethod
 #: Initialisations of the network: the official one (``network.official_init``), or PyTorch's
 #: defaults everywhere (as the network here before 2026-11-28; for the ablation).
 INITS = ("official", "torch")
+
+#: What the dense loss scores: the whole output, folded points and input (official), or the
+#: folded points alone (an ablation: the input no longer covers the ground truth for them).
+FINE_LOSSES = ("output", "folded")
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,11 @@ class PoinTrOptions:
         "official",
         "weight initialisation: 'official' (truncated normal 0.02, Xavier for the 1x1 "
         "convolutions, as PCTransformer._init_weights) or 'torch' (PyTorch's defaults)",
+    )
+    fine_loss: str = option(
+        "output",
+        "what the dense CD scores: 'output' (the folded points and the input, official) or "
+        "'folded' (the folded points alone; ablation)",
     )
     precise_bn_batches: int = option(
         0,
@@ -102,4 +112,9 @@ class PoinTr(PointCloudMethod):
         if self.options.init not in INITS:
             raise ConfigError(
                 f"pointr: init must be one of {list(INITS)}, got {self.options.init!r}"
+            )
+        if self.options.fine_loss not in FINE_LOSSES:
+            raise ConfigError(
+                f"pointr: fine_loss must be one of {list(FINE_LOSSES)}, "
+                f"got {self.options.fine_loss!r}"
             )

@@ -4,8 +4,10 @@ the optimiser's groups and schedule, and a few steps that lower the loss."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
+from conftest import load_benchmark
 from shapebench_pointr.method import PoinTrOptions
 from shapebench_pointr.module import PoinTrModule
 from shapebench_pointr.network import (
@@ -55,6 +57,42 @@ def test_the_output_is_folded_points_then_the_input() -> None:
     assert grid.shape == (2, 9) and grid.min() == -1 and grid.max() == 1
 
 
+def test_each_patch_is_its_centre_plus_the_folded_offsets() -> None:
+    # The layout benchmarks/pointr_patch_spread.py reads: the first M x S dense points are M
+    # patches, patch j = centre j (the coarse cloud's first M points) + the folding head's S
+    # offsets for proxy j, with no scale between them (official: relative_xyz + coarse).
+    torch.manual_seed(0)
+    net = PoinTrNetwork(**TINY).eval()
+    captured = []
+    net.folding.register_forward_hook(lambda mod, inp, out: captured.append(out))
+    coarse, fine = net(torch.randn(2, 20, 3))
+    m, s = net.num_query, net.folding.grid.shape[1]
+    offsets = captured[0].view(2, m, s, 3)
+    patches = fine[:, : m * s].view(2, m, s, 3)
+    assert torch.equal(patches, coarse[:, :m, None, :] + offsets)
+
+
+def test_patch_statistics_by_hand() -> None:
+    stats = load_benchmark("pointr_patch_spread").patch_statistics
+    # Two flat 2 x 2 squares of side 0.2 (RMS from their centroid sqrt(2) x 0.1), their centres
+    # 1 apart; the second patch sits 0.5 away from its centre.
+    square = np.array([[-0.1, -0.1, 0], [0.1, -0.1, 0], [-0.1, 0.1, 0], [0.1, 0.1, 0]])
+    centres = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    patches = np.stack([square, square + [1.0, 0.5, 0]])
+    rows = stats(centres, patches, radius=2.0)
+    rms = 0.1 * 2**0.5
+    np.testing.assert_allclose(rows[:, 0], rms)
+    np.testing.assert_allclose(rows[:, 1], 0, atol=1e-12)  # flat: no spread along z
+    np.testing.assert_allclose(rows[:, 2], 1)  # a square, not a line
+    np.testing.assert_allclose(rows[:, 3], rms)  # over the 1.0 gap between the centres
+    np.testing.assert_allclose(rows[:, 4], rms / 2)
+    np.testing.assert_allclose(rows[:, 5], [0, 0.5])
+    line = np.array([[x, 0, 0] for x in (-0.1, 0, 0.1)])
+    assert stats(centres, np.stack([line, line + [1.0, 0, 0]]), 1.0)[0, 2] == 0
+    blob = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.1
+    assert stats(centres, np.stack([blob, blob + [1.0, 0, 0]]), 1.0)[0, 1] == pytest.approx(1)
+
+
 def test_the_transformer_is_laid_out_and_initialised_as_the_official() -> None:
     torch.manual_seed(0)
     net = PoinTrNetwork(**{**TINY, "dim": 64, "depth": (2, 2)})
@@ -91,6 +129,32 @@ def test_an_unknown_init_is_one_clear_error() -> None:
 
     with pytest.raises(ConfigError, match="init must be one of"):
         PoinTr(PoinTrOptions(init="xavier"))
+
+
+def test_the_fine_loss_scores_the_whole_output_or_the_folded_points_alone() -> None:
+    from shapebench.train.losses import chamfer_l1_halved
+
+    torch.manual_seed(0)
+    context, target = torch.randn(2, 10, 3), torch.randn(2, 64, 3)
+    official = PoinTrModule(PoinTrOptions(**TINY_OPTIONS)).eval()
+    folded = PoinTrModule(PoinTrOptions(**TINY_OPTIONS, fine_loss="folded")).eval()
+    folded.load_state_dict(official.state_dict())
+    _, fine = official.network(context)
+    # Official: the folded points and the input copied into the output, against the target.
+    expected = chamfer_l1_halved(fine, target).mean()
+    assert torch.equal(official.losses(context, target)["fine"], expected)
+    # The ablation leaves the input's copy out: only the 4 x 2 x 2 folded points are scored.
+    expected = chamfer_l1_halved(fine[:, :16], target).mean()
+    assert torch.equal(folded.losses(context, target)["fine"], expected)
+
+
+def test_an_unknown_fine_loss_is_one_clear_error() -> None:
+    from shapebench_pointr.method import PoinTr
+
+    from shapebench.api.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="fine_loss must be one of"):
+        PoinTr(PoinTrOptions(fine_loss="dense"))
 
 
 def test_the_first_decoder_block_reads_the_encoder_centres_nearest_each_query() -> None:
