@@ -153,15 +153,33 @@ def _make_reference(sb, root) -> refs.Reference:
     return ref
 
 
+@pytest.fixture(scope="session")
+def small_igr_reference(tmp_path_factory, data_cache) -> refs.Reference:
+    """The small IGR trained once (per test process) and exported as a reference: the tests
+    below are about using references, not about training."""
+    from conftest import Shapebench
+
+    ws = tmp_path_factory.mktemp("reference-training")
+    return _make_reference(Shapebench(ws, data_cache), tmp_path_factory.mktemp("refs"))
+
+
 @pytest.fixture
-def with_reference(shapebench, tmp_path):
-    """The CLI runner, reading references from a folder that holds the small IGR's."""
+def with_reference(shapebench, tmp_path, small_igr_reference):
+    """The CLI runner, reading references from a folder of its own that holds a copy of the
+    small IGR's (a test may damage it)."""
+    made = small_igr_reference
     root = tmp_path / "refs"
+    shutil.copytree(made.folder.parents[1], root)
     shapebench.extra_env["SHAPEBENCH_REFERENCE_CHECKPOINTS"] = str(root)
-    return shapebench, _make_reference(shapebench, root)
+    return shapebench, refs.Reference(root / "igr" / made.folder.name, made.info)
+
+
+#: The tests that use the small IGR's reference run in one worker, which trains it once.
+SHARES_THE_REFERENCE = pytest.mark.xdist_group("small-igr-reference")
 
 
 @pytest.mark.slow
+@SHARES_THE_REFERENCE
 def test_a_run_uses_the_reference_of_its_key_and_retrain_trains(with_reference):
     sb, ref = with_reference
     used = sb(*RUN)
@@ -192,6 +210,7 @@ def test_a_run_uses_the_reference_of_its_key_and_retrain_trains(with_reference):
 
 
 @pytest.mark.slow
+@SHARES_THE_REFERENCE
 def test_a_reference_of_another_key_or_a_damaged_one_is_not_used(with_reference):
     sb, ref = with_reference
     other = sb(*RUN, "-O", "epochs=3")  # another key: trains
