@@ -12,7 +12,10 @@ per worker (``OMP_NUM_THREADS``), so N workers do not oversubscribe the machine;
 --threads`` sets another number (fewer, to evaluate beside a training).
 
 Nothing here is a scheduler: killing a worker loses at most its cell in progress (its lock is
-released with it), and rerunning the sweep computes what is missing.
+released with it), and rerunning the sweep computes what is missing. The workers die with the
+sweep that started them, even when it is killed with ``kill -9``: the kernel sends each one
+SIGTERM (:func:`shapebench.train.training.die_with_parent`), which stops it like Ctrl-C, its
+training child included.
 """
 
 from __future__ import annotations
@@ -77,6 +80,8 @@ def run_local(
     """Run ``jobs`` workers of the sweep whose command line is ``argv``, with ``threads_each``
     torch threads each (None: :func:`threads_per_worker`); the number of workers that failed.
     Ctrl-C stops them (each saves its training checkpoint, as on Ctrl-C)."""
+    from shapebench.train.training import die_with_parent
+
     log_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     env = dict(os.environ)
@@ -87,9 +92,10 @@ def run_local(
         log = log_dir / f"sweep-{stamp}-worker{i}.log"
         with open(log, "w") as out:
             cmd = [sys.executable, "-m", "shapebench", "sweep", *worker_argv(argv, i)]
-            procs.append(
-                (subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT), log)
+            proc = subprocess.Popen(
+                cmd, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=die_with_parent()
             )
+            procs.append((proc, log))
     echo(f"{jobs} workers, {threads} torch threads each; logs: {log_dir}/sweep-{stamp}-worker*.log")
     try:
         codes = [p.wait() for p, _ in procs]

@@ -179,3 +179,57 @@ def test_submitit_jobs_give_the_inline_leaderboard_and_a_resubmission_completes_
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "0 trainings to submit" in res.stdout
     _assert_each_cell_once_and_same_board(sb, inline_board, tmp_path / "board-submitit")
+
+
+@pytest.mark.slow
+def test_sigkill_of_a_local_sweep_stops_its_workers_and_their_trainings(shapebench, tmp_path):
+    """Issue 59: ``kill -9`` of ``sweep --launcher local`` as soon as a worker's training child
+    appears: within 15 s no worker and no training is left, and no checkpoint key's lock is
+    held. (The workers used to outlive the launcher, and their trainings with them.)"""
+    import time
+    from pathlib import Path
+
+    from shapebench.store.locks import try_lock
+
+    sb = shapebench
+    sweep = tmp_path / "sweep.yaml"
+    # Only the IGR, trained far longer than the test waits: a survivor would still be training.
+    sweep.write_text(
+        SWEEP.replace("epochs: 60", "epochs: 1000")
+        .replace("  - gauss\n", "")
+        .replace("[trained, novel]", "[trained]")
+        .replace("[50, 100]", "[50]")
+    )
+    proc = sb.popen("sweep", str(sweep), "-q", "--launcher", "local", "-j", "2")
+    mine = str(tmp_path)  # the workers name the sweep file, the trainings the workspace
+
+    def trainings() -> list[int]:
+        return [
+            pid
+            for pid in processes_mentioning(mine)
+            if pid in processes_mentioning("shapebench train")
+        ]
+
+    try:
+        wait_for(trainings, timeout=300, what="a worker's training to start")
+        assert processes_mentioning("--worker", parent=proc.pid), "no worker running"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        killed = time.monotonic()
+        wait_for(
+            lambda: not processes_mentioning(mine),
+            timeout=15,
+            what="the workers and their trainings to stop after the sweep's kill -9",
+            explain=lambda: "\n".join(
+                (Path("/proc") / str(pid) / "cmdline").read_text().replace("\0", " ")[:300]
+                for pid in processes_mentioning(mine)
+            ),
+        )
+        print(f"everything gone {time.monotonic() - killed:.1f} s after the kill -9")
+        for path in (sb.workspace / "checkpoints").glob("*/*.lock"):
+            lock = try_lock(path)
+            assert lock is not None, f"{path} is still held"
+            lock.release()
+    finally:
+        for pid in processes_mentioning(mine):
+            os.kill(pid, signal.SIGKILL)

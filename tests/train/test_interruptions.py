@@ -183,3 +183,129 @@ def test_a_signal_stops_between_steps_and_the_resume_gives_the_same_weights(
     assert resumed["global_step"] == straight["global_step"]
     a, b = straight["state_dict"], resumed["state_dict"]
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+#: One cell of the tiny IGR, trained far longer than a test waits: an orphan would still train.
+LONG_IGR_SWEEP = """
+name: orphans
+methods:
+  - name: igr
+    options: {latent_dim: 8, width: 32, depth: 2, batch_shapes: 4, surface_points: 64,
+              mesh_resolution: 32, opt_steps: 5, epochs: 1000}
+datasets:
+  - name: synthetic
+    options: {test_per_category: 1, train_per_category: 1, surface_candidates: 3000,
+              gt_points: 2000}
+splits: [trained]
+contexts: [50]
+seeds: [0]
+"""
+
+
+def training_processes(sb) -> list[int]:
+    """Live ``shapebench train`` processes of this workspace (their command line names it)."""
+    return [
+        pid
+        for pid in processes_mentioning(str(sb.workspace))
+        if pid in processes_mentioning("shapebench train")
+    ]
+
+
+def held_training_locks(sb) -> list[Path]:
+    """The checkpoint keys' locks that some process holds."""
+    from shapebench.store.locks import try_lock
+
+    held = []
+    for path in (sb.workspace / "checkpoints").glob("*/*.lock"):
+        lock = try_lock(path)
+        if lock is None:
+            held.append(path)
+        else:
+            lock.release()
+    return held
+
+
+def assert_nothing_left_after_killing(sb, proc, leftovers: str, delay: float = 0.0) -> None:
+    """SIGKILL ``proc`` ``delay`` seconds from now; within 15 s no process of this test
+    (a command line mentioning ``leftovers``) may live, and no checkpoint key's lock be held.
+    Whatever is left is killed afterwards, so that a failure leaves no orphan either."""
+    time.sleep(delay)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed = time.monotonic()
+    try:
+        wait_for(
+            lambda: not processes_mentioning(leftovers),
+            timeout=15,
+            what=f"the processes of {leftovers} to stop after their parent's kill -9",
+            explain=lambda: "\n".join(
+                (Path("/proc") / str(pid) / "cmdline").read_text().replace("\0", " ")[:300]
+                for pid in processes_mentioning(leftovers)
+            ),
+        )
+        print(f"everything gone {time.monotonic() - killed:.1f} s after the kill -9")
+        assert held_training_locks(sb) == []
+    finally:
+        for pid in processes_mentioning(leftovers):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("command", ["run", "sweep", "train"])
+def test_sigkill_as_soon_as_a_training_starts_leaves_no_training_behind(
+    shapebench, tmp_path, command
+):
+    """Issue 59: a ``run`` (or inline ``sweep``) killed while its training child still imports
+    torch or prepares data, before any Python-level watchdog could start, left that child
+    training for minutes. The child must die with its parent at any moment, and release the
+    key's lock; a killed ``train`` is the training itself, and leaves no lock held either."""
+    sb = shapebench
+    if command == "sweep":
+        sweep = tmp_path / "sweep.yaml"
+        sweep.write_text(LONG_IGR_SWEEP)
+        proc = sb.popen("sweep", str(sweep), "-q")
+    else:
+        extra = ["--split", "trained", "--contexts", "50"] if command == "run" else []
+        proc = sb.popen(command, *IGR, "-O", "epochs=1000", *extra, "-q")
+    if command == "train":
+        # Killed while it trains and holds the key's lock.
+        wait_for(lambda: saved_epochs(sb) >= 1, what="the training to save an epoch")
+        assert held_training_locks(sb)
+    else:
+        # Killed as soon as the child appears: it is still importing (the case of the issue).
+        wait_for(
+            lambda: processes_mentioning("shapebench train", parent=proc.pid),
+            timeout=180,
+            what="the child training to start",
+        )
+    assert_nothing_left_after_killing(sb, proc, str(sb.workspace))
+
+
+def test_the_fallback_watchdog_stops_a_training_whose_parent_is_already_gone(tmp_path):
+    """Where the kernel does not stop the child (no prctl, or the parent died before the child
+    was armed), :func:`watch_parent` does, even when it starts after its parent died: it used
+    to take a parent that was not (or no longer) its parent for a Lightning rank's, and watch
+    nothing."""
+    import subprocess
+    import sys
+
+    from shapebench.train.training import PARENT_ENV
+
+    gone = subprocess.Popen(["true"])
+    gone.wait()  # a pid no process has now, as a dead parent's
+    code = (
+        "import time; from shapebench.train.training import watch_parent; watch_parent(); "
+        "time.sleep(30); print('still running')"
+    )
+    env = {**os.environ, PARENT_ENV: str(gone.pid)}
+    child = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60
+    )
+    assert child.returncode == -signal.SIGTERM, child.stdout + child.stderr
+    assert f"(pid {gone.pid}) is gone: stopping" in child.stderr
+    # A parent alive, but not this process's parent (a grandchild inherited the variable, as
+    # the ranks Lightning launches do): neither stopped nor watched.
+    env = {**os.environ, PARENT_ENV: str(os.getpid())}
+    code = "from shapebench.train.training import watch_parent; watch_parent(); print('kept')"
+    shell = f'{sys.executable} -c "{code}"; true'  # `; true`: sh forks, no exec
+    child = subprocess.run(["sh", "-c", shell], env=env, capture_output=True, text=True, timeout=60)
+    assert child.returncode == 0 and "kept" in child.stdout, child.stderr
