@@ -17,6 +17,7 @@ from typing import Any
 from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
 from shapebench.store import records as rec
+from shapebench.store.paging import search_all_experiments, search_all_runs
 from shapebench.store.records import CELL_KIND, PARENT_KIND, TRAINING_KIND, CellRecord
 from shapebench.store.urls import run_url
 
@@ -69,7 +70,7 @@ def _client(settings: Settings) -> Any:
 
 
 def _experiments(client: Any) -> dict[str, str]:
-    return {e.experiment_id: e.name for e in client.search_experiments()}
+    return {e.experiment_id: e.name for e in search_all_experiments(client)}
 
 
 def _primary_metric(dataset: str, cards: dict[str, str]) -> str:
@@ -174,11 +175,12 @@ def list_runs(
         clauses.append(f"tags.`{rec.CONTEXT_SIZE_TAG}` = '{int(context_size)}'")
     if status:
         clauses.append(f"attributes.status = '{status.upper()}'")
-    runs = client.search_runs(
+    runs = search_all_runs(
+        client,
         list(experiments),
         filter_string=" and ".join(clauses),
         order_by=["attributes.start_time DESC"],
-        max_results=limit,
+        limit=limit,
     )
     primary: dict[tuple, str] = {}
     rows = [
@@ -299,11 +301,7 @@ def find_run(client: Any, ref: str) -> Any:
     if len(ref) >= 4:
         experiments = _experiments(client)
         matches = (
-            [
-                r
-                for r in client.search_runs(list(experiments), max_results=50000)
-                if r.info.run_id.startswith(ref)
-            ]
+            [r for r in search_all_runs(client, list(experiments)) if r.info.run_id.startswith(ref)]
             if experiments
             else []
         )
@@ -341,10 +339,10 @@ def show_run(settings: Settings, ref: str) -> RunDetails:
     run = find_run(client, ref)
     info = run.info
     experiments = _experiments(client)
-    children = client.search_runs(
+    children = search_all_runs(
+        client,
         [info.experiment_id],
         filter_string=f"tags.`{rec.PARENT_RUN_TAG}` = '{info.run_id}'",
-        max_results=1000,
     )
     base = ui_base(settings)
     training = run.data.tags.get(rec.TRAINING_RUN_TAG, "")

@@ -31,6 +31,7 @@ from typing import Any
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import SCORE_RTOL, scores_agree
+from shapebench.store.paging import search_all_experiments, search_all_runs
 from shapebench.store.records import (
     CELL_KEY_TAG,
     CELL_KIND,
@@ -126,8 +127,8 @@ def _merge_one(
     source: Any, source_uri: str, target: Any, target_uri: str, report: MergeReport
 ) -> None:
     batches = []
-    for exp in source.search_experiments():
-        runs = sorted(source.search_runs([exp.experiment_id], max_results=50000), key=_rank)
+    for exp in search_all_experiments(source):
+        runs = sorted(search_all_runs(source, [exp.experiment_id]), key=_rank)
         if runs:
             batches.append((exp, runs))
     batches.sort(key=lambda batch: _rank(batch[1][0]))

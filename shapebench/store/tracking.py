@@ -30,6 +30,7 @@ from typing import Any
 from shapebench.api.errors import TrackingError
 from shapebench.config import Settings
 from shapebench.store import records as rec
+from shapebench.store.paging import search_all_experiments, search_all_runs
 from shapebench.store.provenance import run_context_tags
 from shapebench.store.urls import VIEW_KEY, view_state
 
@@ -152,7 +153,8 @@ class Tracker:
 
     def abandon_stale(self, exp_id: str, key: str, tag: str = rec.CELL_KEY_TAG) -> int:
         """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""
-        runs = self.client.search_runs(
+        runs = search_all_runs(
+            self.client,
             [exp_id],
             filter_string=f"tags.`{tag}` = '{key}' and attributes.status = 'RUNNING'",
         )
@@ -271,17 +273,18 @@ class Tracker:
         return [a.path for a in self.client.list_artifacts(run_id, folder)]
 
     def experiment_names(self, prefix: str = "") -> list[str]:
-        return [e.name for e in self.client.search_experiments() if e.name.startswith(prefix)]
+        experiments = search_all_experiments(self.client)
+        return [e.name for e in experiments if e.name.startswith(prefix)]
 
     def finished_cells(self, exp_id: str) -> list[tuple[str, int, rec.CellRecord]]:
         """(run id, start time, record) of every finished cell of an experiment, newest first."""
-        runs = self.client.search_runs(
+        runs = search_all_runs(
+            self.client,
             [exp_id],
             filter_string=(
                 f"tags.`{rec.KIND_TAG}` = '{rec.CELL_KIND}' and attributes.status = 'FINISHED'"
             ),
             order_by=["attributes.start_time DESC"],
-            max_results=50000,
         )
         return [(r.info.run_id, r.info.start_time, rec.CellRecord.from_run(r)) for r in runs]
 
@@ -290,7 +293,7 @@ class Tracker:
         equal ``tags``, oldest first, as ``(run id, tags)``."""
         clauses = [f"tags.`{rec.KIND_TAG}` = '{kind}'"]
         clauses += [f"tags.`{k}` = '{v}'" for k, v in (tags or {}).items()]
-        runs = self.client.search_runs([exp_id], " and ".join(clauses), max_results=1000)
+        runs = search_all_runs(self.client, [exp_id], " and ".join(clauses))
         runs = sorted(runs, key=lambda r: r.info.start_time)
         return [(r.info.run_id, dict(r.data.tags)) for r in runs]
 

@@ -24,6 +24,7 @@ from types import FrameType
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.config import Settings
+from shapebench.store.paging import search_all_experiments, search_all_runs
 from shapebench.store.records import VIEW_TAG_PREFIX
 from shapebench.store.urls import VIEW_KEY, experiment_url
 
@@ -70,9 +71,9 @@ class ExperimentLink:
 def experiment_links(client: object, base: str) -> list[ExperimentLink]:
     """A link per active experiment of the store, evaluations first, then trainings."""
     links = []
-    for exp in client.search_experiments():
+    for exp in search_all_experiments(client):
         has_view = VIEW_TAG_PREFIX + VIEW_KEY in exp.tags
-        runs = len(client.search_runs([exp.experiment_id], max_results=1000))
+        runs = len(search_all_runs(client, [exp.experiment_id]))
         links.append(
             ExperimentLink(
                 exp.name,
