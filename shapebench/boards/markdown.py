@@ -66,8 +66,9 @@ def floor_legend(board: Board) -> str:
     return (
         f"{FLOOR_MARK}: not significantly better than {which} ({board_stats.TEST_NAME} across "
         f"the rows at that size, α = {board_stats.ALPHA}; a row is better only with a better "
-        "mean and a corrected p below α); the floor used and the p-values are in the CSV "
-        "(`floor`, `p_vs_floor`, `p_floor_holm`, `below_floor`)."
+        "mean and a corrected p below α; the floor rows themselves are not marked); the floor "
+        "used and the p-values are in the CSV (`floor`, `p_vs_floor`, `p_floor_holm`, "
+        "`below_floor`)."
     )
 
 

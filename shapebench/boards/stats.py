@@ -309,7 +309,7 @@ def floor_test(
     higher_is_better: bool = False,
     alpha: float = ALPHA,
 ) -> pd.DataFrame:
-    """Per (variant, context) of every row but the floor: ``floor`` (the variant key of the
+    """Per (variant, context) of every row but the floors: ``floor`` (the variant key of the
     better floor at that size: of the variants ``floors`` with a mean there, the one with the
     better mean), ``p_vs_floor`` (the paired test over the samples both have, as
     :func:`significance`), ``p_floor_holm`` (Holm-corrected across the rows at that size) and
@@ -325,7 +325,7 @@ def floor_test(
         floor_values = g[g["variant"] == floor].set_index(KEYS)["scored"]
         tested, pvals, better = [], [], []
         for variant in sorted(means.index):
-            if variant == floor:
+            if variant in floors:  # the floors define the bar; they are not held to it
                 continue
             values = g[g["variant"] == variant].set_index(KEYS)["scored"]
             both = pd.concat([floor_values, values], axis=1, join="inner").dropna()
