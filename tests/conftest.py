@@ -122,22 +122,6 @@ def data_cache(tmp_path_factory) -> Path:
 #: than this process's starts with exec.
 EXEC_ONLY_ENV = {"OMP_NUM_THREADS", "MKL_NUM_THREADS", "PYTHONWARNINGS", "PYTHONHASHSEED"}
 
-
-def _share_the_cores() -> None:
-    """Under xdist, each worker's torch (in the tests, in the fork server and in every command
-    they start) gets its share of the cores, as ``sweep -j N`` gives its workers: two workers of
-    two torch threads each on two cores spend their time waiting on each other. A thread count
-    given in the environment is kept."""
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1)
-    if workers < 2 or "OMP_NUM_THREADS" in os.environ:
-        return
-    threads = str(max(1, (os.cpu_count() or 1) // workers))
-    os.environ["OMP_NUM_THREADS"] = threads
-    os.environ.setdefault("MKL_NUM_THREADS", threads)
-
-
-_share_the_cores()
-
 #: Commands run by ``Shapebench(...)`` fork a pre-imported interpreter (tests/cli_fork.py), unless
 #: SHAPEBENCH_TEST_EXEC=1; ``Shapebench.popen`` always starts a new interpreter.
 _fork_server = None if os.environ.get("SHAPEBENCH_TEST_EXEC") == "1" else ForkServer()

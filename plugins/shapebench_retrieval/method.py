@@ -25,10 +25,9 @@ searched exactly with early termination (ties: the lowest index in the ``train``
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -85,10 +84,9 @@ class Retrieval(Method):
             "optimizer_steps": 0,
             "final": {},
         }
-        # Beside the checkpoint, as Lightning trainings leave theirs (benchmarks/ladder.py).
+        # Beside the checkpoint, as Lightning trainings leave theirs: the training run records
+        # it (shapebench.train.training), so the leaderboard's cost columns show the build.
         (Path(ctx.workdir) / "summary.json").write_text(json.dumps(summary, indent=1))
-        if ctx.run_id:
-            _log_cost(ctx.tracking_uri, ctx.run_id, summary)
         return built.path
 
     def load_checkpoint(self, path: Path) -> None:
@@ -113,24 +111,3 @@ class Retrieval(Method):
             "searched": float(searched),  # shapes whose score was computed to the end
         }
         return Completion(points=gt[rows], info=info)
-
-
-def _log_cost(tracking_uri: str, run_id: str, summary: dict[str, Any]) -> None:
-    """The index build's cost on its MLflow training run, as a Lightning training logs its
-    summary (:func:`shapebench.train.summary.report_summary`): the leaderboard's cost columns
-    read ``summary/*`` and the tag ``training_device``. No epochs or optimiser steps: there are
-    none, and the board then shows the wall time alone."""
-    from mlflow.entities import Metric
-
-    from shapebench.store.records import TRAINING_DEVICE_TAG
-    from shapebench.store.tracking import open_client
-
-    client = open_client(tracking_uri)
-    now = int(time.time() * 1000)
-    metrics = {
-        "summary/wall_seconds": summary["wall_seconds"],
-        "summary/device_hours": summary["device_hours"],
-        "summary/training_shapes": summary["training_shapes"],
-    }
-    client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in metrics.items()])
-    client.set_tag(run_id, TRAINING_DEVICE_TAG, summary["device"])

@@ -126,7 +126,11 @@ class Method(ABC):
     def fit(self, ctx: TrainingContext) -> Path:
         """Train on ``ctx.dataset``'s ``train`` split and return the checkpoint path.
 
-        Called in a fresh process per training so that multi-GPU (DDP) strategies work.
+        Called in a fresh process per training so that multi-GPU (DDP) strategies work. A fit
+        that does not log its own cost (one that is not a Lightning training) may leave a
+        ``summary.json`` in ``ctx.workdir`` (``wall_seconds``, ``device_hours``,
+        ``training_shapes``, ``device``): the training run records it, and the leaderboard's
+        cost columns show it.
         """
         raise NotImplementedError(f"method {self.name!r} declares trains=True but has no fit()")
 

@@ -36,7 +36,7 @@ from shapebench.api.errors import ShapebenchError
 from shapebench.api.method import TrainerOptions, TrainingContext
 from shapebench.config import Settings
 from shapebench.registry.resolve import ResolvedMethod
-from shapebench.store.records import CHECKPOINT_KEY_TAG, training_tags
+from shapebench.store.records import CHECKPOINT_KEY_TAG, TRAINING_DEVICE_TAG, training_tags
 from shapebench.store.tracking import Tracker, flatten, training_experiment_name
 from shapebench.train.ticket import TrainingTicket, apply_trainer, checkpoint_key, step_budget
 
@@ -307,6 +307,8 @@ def _train_locked(ticket: TrainingTicket, settings: Settings, quiet: bool, run_i
             tracker.end_after(run_id, exc, "KILLED" if interrupted else "FAILED")
         raise
     record = {"key": key, "path": str(path), "run_id": run_id}  # weights: local (no "weights")
+    if tracker is not None:
+        _log_fit_summary(tracker, run_id, workdir)
     if _global_rank() == 0:
         tmp = workdir / "done.json.tmp"
         tmp.write_text(json.dumps(record))
@@ -314,6 +316,32 @@ def _train_locked(ticket: TrainingTicket, settings: Settings, quiet: bool, run_i
         if tracker is not None:
             tracker.end(run_id)
     return record
+
+
+#: The numbers of a fit's ``summary.json`` that a training run records as ``summary/<name>``.
+SUMMARY_NUMBERS = ("wall_seconds", "device_hours", "training_shapes", "epochs", "optimizer_steps")
+
+
+def _log_fit_summary(tracker: Tracker, run_id: str, workdir: Path) -> None:
+    """The cost of a fit that did not log its own (one that is not a Lightning training, such as
+    an index built from the data): the ``summary.json`` it left in its folder (see
+    :class:`~shapebench.api.method.Method`), recorded on its training run as a Lightning training
+    records its summary, so that the leaderboard's cost columns read it."""
+    try:
+        summary = json.loads((workdir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return
+    logged = tracker.run_summary(run_id)
+    if not isinstance(summary, dict) or (logged and "summary/wall_seconds" in logged[0]):
+        return  # none, or logged by the fit itself (Lightning's logger)
+    metrics = {
+        f"summary/{k}": float(summary[k])
+        for k in SUMMARY_NUMBERS
+        if isinstance(summary.get(k), (int, float))
+    }
+    tracker.log_metrics(run_id, metrics, step=int(summary.get("optimizer_steps", 0) or 0))
+    if summary.get("device"):
+        tracker.set_tags(run_id, {TRAINING_DEVICE_TAG: str(summary["device"])})
 
 
 def _training_params(ticket: TrainingTicket) -> dict[str, Any]:

@@ -24,10 +24,18 @@ def small_pages(monkeypatch):
     monkeypatch.setattr(paging, "PAGE", PAGE)
 
 
+def settings_of(workspace):
+    """Settings of a store of its own in ``workspace`` (named explicitly: an MLflow tracking URI
+    another in-process test left in the environment must not be used)."""
+    return make_settings(
+        f"sqlite:///{workspace / 'mlflow.db'}", workspace / "cache", None, workspace
+    )
+
+
 def fill(workspace) -> tuple[Tracker, str, str, list[str], list[str]]:
     """A store with a parent run, CELLS finished cells under it, one RUNNING cell and
     TRAININGS trainings: (tracker, experiment id, parent id, cell ids, training ids)."""
-    tracker = Tracker(make_settings(workspace=workspace))
+    tracker = Tracker(settings_of(workspace))
     exp = tracker.experiment_id(EXPERIMENT)
     parent = tracker.start_run(exp, "parent", {rec.KIND_TAG: rec.PARENT_KIND})
     cells = []
@@ -123,7 +131,7 @@ def test_merge_copies_every_run(store, tmp_path):
     from shapebench.store.merge import merge_stores
 
     tracker, exp, _, cells, trainings = store
-    target = Tracker(make_settings(workspace=tmp_path / "target"))
+    target = Tracker(settings_of(tmp_path / "target"))
     report = merge_stores([str(tmp_path / "ws")], target.uri, echo=lambda _: None)
     assert report.added == {rec.CELL_KIND: CELLS, rec.TRAINING_KIND: TRAININGS, rec.PARENT_KIND: 1}
     assert report.skipped_unfinished == 1  # the RUNNING cell
