@@ -165,7 +165,10 @@ def test_submitit_jobs_give_the_inline_leaderboard_and_a_resubmission_completes_
     proc = sb.popen("sweep", str(sweep), "-q", "--launcher", "submitit-local", "-j", "2")
     # Kill the cell jobs while one computes a cell: their claims die with them.
     wait_for(lambda: cell_claimed(sb), timeout=600, what="a cell in progress")
-    jobs = processes_mentioning("submitit.core._submit")
+    # This sweep's jobs only (their command line names its workspace's log folder): another
+    # test's jobs (a SLURM test in the other xdist worker) must not be killed.
+    mine = set(processes_mentioning(str(sb.workspace)))
+    jobs = [pid for pid in processes_mentioning("submitit.core._submit") if pid in mine]
     assert jobs, "no submitit job running"
     for pid in jobs:
         os.kill(pid, signal.SIGKILL)
