@@ -1,6 +1,10 @@
 #!/usr/bin/env bash
 # Create (or update) the project's virtual environment and install shapebench into it.
 #
+# Every other dependency is installed at the version constraints.txt pins (scripts/lock.sh
+# refreshes it), so two installs of one commit resolve the same versions; SHAPEBENCH_UNLOCKED=1
+# installs the newest versions pyproject.toml allows instead.
+#
 # torch is kept at whatever version the environment already has: a GPU user installs the torch
 # build for their platform first, and this script pins it with a constraints file so that no
 # dependency can replace it (an unpinned torch would pull a newer release with CUDA wheels).
@@ -28,5 +32,10 @@ from importlib.metadata import version
 print(f"torch=={version('torch')}")
 PY
 echo "[setup] keeping $(cat "$CONSTRAINTS")"
-pip_ install -q -c "$CONSTRAINTS" -e ".[test]"
+LOCK=(-c constraints.txt)
+if [ "${SHAPEBENCH_UNLOCKED:-0}" = 1 ]; then
+  LOCK=()
+  echo "[setup] SHAPEBENCH_UNLOCKED=1: newest versions allowed by pyproject.toml, not constraints.txt"
+fi
+pip_ install -q -c "$CONSTRAINTS" "${LOCK[@]}" -e ".[test]"
 echo "[setup] done: activate with 'source $VENV/bin/activate'"
