@@ -25,7 +25,7 @@ import argparse
 
 import numpy as np
 
-from shapebench.boards.leaderboard import build_board
+from shapebench.boards.leaderboard import BoardQuery, build_board
 from shapebench.boards.stats import paired_p, paired_shift
 from shapebench.config import make_settings
 from shapebench.store.tracking import Tracker
@@ -175,7 +175,8 @@ def main() -> None:
             parser.error(f"--pair takes NOW=BEFORE, got {pair!r}")
         renamed[now] = before
     tracker = Tracker(make_settings(workspace=args.workspace))
-    board = build_board(tracker, args.dataset, args.split, args.reference, args.metric)
+    query = BoardQuery(args.dataset, args.reference, args.metric)
+    board = build_board(tracker, query, args.split)
     if board is None or board.scored is None:
         raise SystemExit(f"no runs of {args.dataset}-{args.split} in this store")
     print("\n".join(compare(board, args.reference)))
@@ -183,13 +184,7 @@ def main() -> None:
         print()
         print("\n".join(by_seed(board)))
     if args.before:
-        before = build_board(
-            Tracker(make_settings(workspace=args.before)),
-            args.dataset,
-            args.split,
-            args.reference,
-            args.metric,
-        )
+        before = build_board(Tracker(make_settings(workspace=args.before)), query, args.split)
         if before is None or before.scored is None:
             raise SystemExit(f"no runs of {args.dataset}-{args.split} in {args.before}")
         print()

@@ -115,6 +115,11 @@ class Method(ABC):
     #: :mod:`shapebench.conformance.testing` (a small network, one epoch): checks train and
     #: complete for real, in seconds.
     check_options: ClassVar[dict[str, Any]] = {}
+    #: Non-empty for a method that cannot complete anything from the kit's tiny dataset alone
+    #: because it reads a user's own input (the ``files`` method: a folder of completions). The
+    #: text says what it needs; ``shapebench check`` then checks its interface and options and
+    #: skips training and completion with that reason, and the method's own tests cover them.
+    check_needs: ClassVar[str] = ""
     #: Modules besides the class's own package whose source changes results (shared training
     #: code the method imports); their code is hashed into cell and checkpoint keys together with
     #: the packages of the class and its bases (see :mod:`shapebench.registry.code_digest`).

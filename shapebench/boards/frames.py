@@ -21,7 +21,7 @@ import pandas as pd
 
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME
-from shapebench.boards.leaderboard import build_board
+from shapebench.boards.leaderboard import BoardQuery, build_board
 from shapebench.boards.selection import label_runs, load_runs, per_object_tables, select_runs
 from shapebench.boards.splits import splits_with_runs
 from shapebench.boards.tidy import tidy_csv
@@ -207,18 +207,16 @@ def load_leaderboard(
     ``--floor``, None for the defaults) and the training cost. ``tail``: the tail threshold
     (default: the metric card's)."""
     tracker = _tracker(workspace, tracking_uri)
-    board = build_board(
-        tracker,
+    query = BoardQuery(
         dataset,
-        split,
         reference,
         metric,
         frame,
         data_version,
-        protocol=protocol,
-        floors=floors,
+        floors=None if floors is None else tuple(floors),
         tail=tail,
     )
+    board = build_board(tracker, query, split, protocol)
     if board is None:
         raise _no_runs(dataset, split, tracker.uri)
     return tidy_csv(board)

@@ -36,7 +36,7 @@ from shapebench import __version__
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.protocol import DEFAULT_FRAME, FRAMES
 from shapebench.boards.board import Board, Row, below_floor, floor_labels, table_id, table_title
-from shapebench.boards.leaderboard import board_path, build_board
+from shapebench.boards.leaderboard import BoardQuery, board_path, build_board
 from shapebench.boards.markdown import FLOOR_MARK, card_line, floor_legend, tail_text
 from shapebench.boards.report_pictures import grids_and_spreads, worst_pictures
 from shapebench.boards.splits import protocols_with_runs, splits_with_runs
@@ -510,21 +510,12 @@ def render_html(sections: list[Section], dataset: str, command: str, uri: str) -
 
 
 def build_report(
-    settings: Settings,
-    dataset: str,
-    splits: list[str] | None,
-    reference: str,
-    metric: str | None,
-    out_dir: Path,
-    frame: str = DEFAULT_FRAME,
-    data_version: str | None = None,
-    all_variants: bool = False,
-    floors: list[str] | tuple[str, ...] | None = None,
-    tail: float | None = None,
+    settings: Settings, query: BoardQuery, splits: list[str] | None, out_dir: Path
 ) -> tuple[Path, float]:
     """Write ``<out_dir>/<dataset>-report.html`` (and each table's figures beside it), log it to
-    the tables' MLflow runs; return the page and the seconds it took. ``floors`` and ``tail``
-    as :func:`~shapebench.boards.leaderboard.build_board`."""
+    the tables' MLflow runs; return the page and the seconds it took. One section per split
+    (``splits``, or every split with runs) and context protocol of ``query``'s dataset."""
+    dataset, frame = query.dataset, query.frame
     from shapebench.boards.figures import board_figures, log_board_artifacts, save
 
     start = time.perf_counter()
@@ -536,19 +527,7 @@ def build_report(
         (split, one) for split in splits for one in protocols_with_runs(tracker, dataset, split)
     ]
     for split, one in tables:
-        board = build_board(
-            tracker,
-            dataset,
-            split,
-            reference,
-            metric,
-            frame,
-            data_version,
-            all_variants,
-            one,
-            floors,
-            tail,
-        )
+        board = build_board(tracker, query, split, one)
         if board is None:
             continue
         md = board_path(out_dir, dataset, split, frame, one)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -135,30 +136,44 @@ class MetricNotRecorded(ShapebenchError):
     """No run of a table computed the metric asked for."""
 
 
+@dataclass(frozen=True)
+class BoardQuery:
+    """What a dataset's tables are asked for, the same for each of its splits and context
+    protocols: the options ``shapebench leaderboard`` and ``shapebench report`` share.
+
+    ``reference``: the row every other is normalised by (its label or method name); ``metric``:
+    None for the dataset's default; ``data_version``: a fingerprint prefix (None: the newest
+    version with runs); ``all_variants``: keep older variants that share a label with a newer
+    one; ``floors``: the labels (or method names) of the rows every other row is tested against
+    (None: :data:`DEFAULT_FLOORS`; those without rows are ignored); ``tail``: the threshold of
+    the tail column in displayed units (None: the metric card's)."""
+
+    dataset: str
+    reference: str
+    metric: str | None = None
+    frame: str = DEFAULT_FRAME
+    data_version: str | None = None
+    all_variants: bool = False
+    floors: tuple[str, ...] | None = None
+    tail: float | None = None
+
+
 def build_board(
-    tracker: Tracker,
-    dataset: str,
-    split: str,
-    reference: str,
-    metric: str | None,
-    frame: str = DEFAULT_FRAME,
-    data_version: str | None = None,
-    all_variants: bool = False,
-    protocol: str = DEFAULT_CONTEXT,
-    floors: list[str] | tuple[str, ...] | None = None,
-    tail: float | None = None,
+    tracker: Tracker, query: BoardQuery, split: str, protocol: str = DEFAULT_CONTEXT
 ) -> Board | None:
-    """The table of one dataset split and context protocol, or None without runs. ``floors``:
-    the labels (or method names) of the rows every other row is tested against (default
-    :data:`DEFAULT_FLOORS`; those without rows are ignored); ``tail``: the threshold of the tail
-    column in displayed units (default: the metric card's)."""
+    """The table of one split and context protocol of ``query``'s dataset, or None without
+    runs."""
+    dataset, reference, metric = query.dataset, query.reference, query.metric
+    frame, floors, tail = query.frame, query.floors, query.tail
     exp_id = tracker.experiment_id(experiment_name(dataset, split), create=False)
     if exp_id is None:
         return None
     runs = load_runs(tracker, exp_id)
     if runs.empty:
         return None
-    runs, fingerprint, left_out = select_runs(runs, frame, data_version, all_variants, protocol)
+    runs, fingerprint, left_out = select_runs(
+        runs, frame, query.data_version, query.all_variants, protocol
+    )
     if runs.empty:
         return None
     if metric is None:
@@ -301,22 +316,15 @@ def board_path(
 
 def build_leaderboards(
     settings: Settings,
-    dataset: str,
+    query: BoardQuery,
     splits: list[str] | None,
-    reference: str,
-    metric: str | None,
     out_dir: Path,
-    frame: str = DEFAULT_FRAME,
-    data_version: str | None = None,
-    all_variants: bool = False,
     protocol: str | None = DEFAULT_CONTEXT,
-    floors: list[str] | tuple[str, ...] | None = None,
-    tail: float | None = None,
 ) -> list[Path]:
-    """Write the tables of ``dataset``: one per split (``splits``, or every split with runs)
-    and context protocol (``protocol``, or every protocol with runs when None), each as
-    Markdown, CSV, per-category CSV (``<table>-categories.csv``) and figures; ``floors`` and
-    ``tail`` as :func:`build_board`."""
+    """Write the tables of ``query``'s dataset: one per split (``splits``, or every split with
+    runs) and context protocol (``protocol``, or every protocol with runs when None), each as
+    Markdown, CSV, per-category CSV (``<table>-categories.csv``) and figures."""
+    dataset, frame = query.dataset, query.frame
     tracker = Tracker(settings)
     if splits is None:
         splits = splits_with_runs(tracker, dataset)
@@ -332,19 +340,7 @@ def build_leaderboards(
     skipped: list[MetricNotRecorded] = []
     for split, one in tables:
         try:
-            board = build_board(
-                tracker,
-                dataset,
-                split,
-                reference,
-                metric,
-                frame,
-                data_version,
-                all_variants,
-                one,
-                floors,
-                tail,
-            )
+            board = build_board(tracker, query, split, one)
         except MetricNotRecorded as exc:
             # Among several tables, one whose runs never computed the metric is skipped (said
             # in one line): --metric iou should not fail because crop runs computed Chamfer only.

@@ -232,9 +232,10 @@ def _options() -> list[str]:
     out += [
         "Conventions: set the class attribute `Options` of a method or dataset to a frozen "
         "dataclass whose fields all have defaults (`NoOptions` when there are none). Field types "
-        "are checked and coerced: `int`, `float` (an integer is accepted), `str`, `bool`, "
-        "`X | None`, `list`/`tuple`. A method option named `epochs` receives `--max-epochs`, "
-        "one named `steps` `--max-steps`. "
+        "are checked strictly (pydantic): `int` (not a bool), `float` (an integer, or text in "
+        "exponent notation such as `1e-3`, is accepted), `str`, `bool`, `X | None`, "
+        "`list[...]`/`tuple[...]` (elements checked), `Literal`, enums. A method option named "
+        "`epochs` receives `--max-epochs`, one named `steps` `--max-steps`. "
         "Each field's `metadata` may hold:",
         "",
         "| key | options of | effect |",

@@ -44,11 +44,11 @@ def _floor_and_tail_options(command):
     )(command)
 
 
-def _floors(given: tuple[str, ...]) -> list[str] | None:
-    """The floors asked for: None for the defaults, [] for ``--floor none``."""
+def _floors(given: tuple[str, ...]) -> tuple[str, ...] | None:
+    """The floors asked for: None for the defaults, () for ``--floor none``."""
     if not given:
         return None
-    return [] if list(given) == ["none"] else list(given)
+    return () if list(given) == ["none"] else tuple(given)
 
 
 @cli.command()
@@ -139,7 +139,7 @@ def leaderboard(
     own, written as <dataset>-<split>-crop-0_5.md; the header names the protocol. Without
     --protocol, every protocol with runs gets its table.
     """
-    from shapebench.boards.leaderboard import build_leaderboards
+    from shapebench.boards.leaderboard import BoardQuery, build_leaderboards
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     given = context_protocol is not None or crop_fraction or context_noise
@@ -148,19 +148,11 @@ def leaderboard(
         if given
         else None
     )
+    query = BoardQuery(
+        dataset, reference, metric, frame, data_version, all_variants, _floors(floors), tail
+    )
     for path in build_leaderboards(
-        settings,
-        dataset,
-        splits.split(",") if splits else None,
-        reference,
-        metric,
-        Path(out_dir),
-        frame,
-        data_version,
-        all_variants,
-        protocol,
-        _floors(floors),
-        tail,
+        settings, query, splits.split(",") if splits else None, Path(out_dir), protocol
     ):
         click.echo(f"wrote {path}")
 
@@ -243,22 +235,16 @@ def report(
       shapebench report -d shapenet --frame unit-diameter
     """
     from shapebench.boards.html_report import build_report
+    from shapebench.boards.leaderboard import BoardQuery
 
     # Reading back dozens of small artifacts would print one progress bar each.
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    query = BoardQuery(
+        dataset, reference, metric, frame, data_version, all_variants, _floors(floors), tail
+    )
     page, seconds = build_report(
-        settings,
-        dataset,
-        splits.split(",") if splits else None,
-        reference,
-        metric,
-        Path(out_dir),
-        frame,
-        data_version,
-        all_variants,
-        _floors(floors),
-        tail,
+        settings, query, splits.split(",") if splits else None, Path(out_dir)
     )
     click.echo(f"wrote {page} in {seconds:.1f} s (open it in a browser)")
 

@@ -91,6 +91,9 @@ def _method_steps(
     if options is None:
         yield from skip_rest(_METHOD_CHECKS[2:-1], "no usable options")
         return
+    if getattr(cls, "check_needs", ""):
+        yield from skip_rest(_METHOD_CHECKS[2:-1], f"needs {cls.check_needs}")
+        return
     path = trained = None
     if cls.trains:
         res, path = run_check("train", lambda: _train(cls, options, env, comp.name))
@@ -151,6 +154,9 @@ def _method_options(cls: type, owner: str, overrides: dict[str, Any]) -> tuple[s
     options_roundtrip(cls.Options, {}, owner)
     tiny = {**method_check_options(cls), **overrides}
     options = options_roundtrip(cls.Options, tiny, owner)
+    if getattr(cls, "check_needs", ""):
+        # It cannot be built without the user's input it needs (its own tests build it).
+        return options_message(cls.Options, tiny), options
     # The config a run logs holds the options as the instance resolved them (recipe defaults
     # filled in); built again from that config, the method must resolve the same options.
     effective = cls(options).options

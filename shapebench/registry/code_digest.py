@@ -37,6 +37,7 @@ _CORE = {"shapebench"} | {
         "sweeps",
         "cli",
         "geometry",
+        "exchange",
     )
 }
 

@@ -40,9 +40,10 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args, get_type_hints
 
 from shapebench.api.errors import ConfigError, ShapebenchError
+from shapebench.api.options import check_value, suggest, type_name
 from shapebench.config import Settings
 from shapebench.sweeps.jobs import PREEMPT_SIGNAL, CellsJob, JobContext, PrepareJob, TrainingJob
 from shapebench.sweeps.plan import CellTask, SweepPlan
@@ -81,26 +82,50 @@ class LauncherConfig:
 
 
 def _apply(cfg: LauncherConfig, values: dict[str, Any], where: str) -> LauncherConfig:
+    """``cfg`` with ``values`` (a launcher block, ``--slurm`` values or a method's overrides),
+    each checked against its field's type: a list or a bool where a number belongs (``time:
+    [1]``, ``gpus_per_node: true``) is refused naming the key, never handed to submitit. Numbers
+    given as text (``"30"``) are read as numbers; the other values are kept as given (``mem_gb:
+    16`` stays ``16GB``, not ``16.0GB``). A method's overrides under ``methods`` are checked
+    here too, before any job is submitted."""
     known = {f.name: f for f in fields(LauncherConfig)}
     unknown = sorted(set(values) - set(known))
     if unknown:
         raise ConfigError(
-            f"{where}: unknown launcher keys {unknown}",
+            f"{where}: unknown launcher keys {unknown}: "
+            + ", ".join(suggest(k, known) for k in unknown),
             f"known keys: {', '.join(sorted(known))}",
         )
+    hints = get_type_hints(LauncherConfig)
     out = {}
     for key, value in values.items():
-        default = getattr(cfg, key)
-        if isinstance(default, bool) or default is None or isinstance(default, (dict, list)):
-            out[key] = value
-        elif isinstance(default, (int, float)) and isinstance(value, str):
-            try:
-                out[key] = type(default)(value)
-            except ValueError:
-                raise ConfigError(f"{where}: {key} must be a number, got {value!r}") from None
-        else:
-            out[key] = value
+        value = _number(value, hints[key], f"{where}: {key}")
+        out[key] = check_value(value, hints[key], f"{where}: {key}", convert=False)
+    for name, block in out.get("methods", {}).items():
+        if "methods" in block:
+            raise ConfigError(f"{where}.methods.{name}: a method's overrides hold no 'methods'")
+        _apply(cfg, block, f"{where}.methods.{name}")
     return replace(cfg, **out)
+
+
+def _number(value: Any, annotation: Any, label: str) -> Any:
+    """``value`` read as a number when it is text for a number field (``--slurm time=30`` from
+    Python, ``time: "30"`` in YAML); anything else unchanged, for :func:`check_value`."""
+    accepted = set(get_args(annotation)) or {annotation}
+    if not isinstance(value, str) or not accepted & {int, float} or str in accepted:
+        return value
+    try:
+        return int(value)
+    except ValueError:
+        pass
+    if float in accepted:
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    raise ConfigError(
+        f"{label} must be a number ({type_name(annotation)}), got {value!r}"
+    ) from None
 
 
 def launcher_config(

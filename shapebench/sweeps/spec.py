@@ -12,8 +12,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from shapebench.api import options as opts
 from shapebench.api.errors import ConfigError, ShapebenchError
 from shapebench.api.method import TrainerOptions
+from shapebench.api.options import check_value, suggest
 from shapebench.api.protocol import DEFAULT_CONTEXT, DEFAULT_FRAME, Protocol
 from shapebench.config import Settings, read_yaml
 from shapebench.evaluation.orchestrate import EvalOutcome, EvalRequest, evaluate
@@ -51,6 +53,40 @@ class SweepSpec:
     launcher: dict[str, Any] = field(default_factory=dict)
 
 
+#: The keys of a sweep file, and of a method or dataset entry in it.
+_SWEEP_KEYS = (
+    "name",
+    "profile",
+    "methods",
+    "datasets",
+    "splits",
+    "contexts",
+    "seeds",
+    "metrics",
+    "frame",
+    "context_normals",
+    "protocol",
+    "crop_fraction",
+    "context_noise",
+    "launcher",
+)
+_ENTRY_KEYS = ("name", "options", "data_root", "label", "datasets")
+
+
+def _check_entry(item: dict[str, Any], key: str, path: Path) -> None:
+    """An entry's values by type, in one line naming the key: a list where the name belongs or
+    a list of options would otherwise fail far from the file (or be read as something else)."""
+    kinds: tuple[tuple[str, Any], ...] = (
+        ("name", str),
+        ("options", dict[str, Any] | None),
+        ("data_root", str | None),
+        ("label", str | None),
+    )
+    for field_name, kind in kinds:
+        if field_name in item:
+            check_value(item[field_name], kind, f"{path}: '{field_name}' of a '{key}' entry")
+
+
 def _entries(value: Any, key: str, path: Path) -> list[Entry]:
     if isinstance(value, str):
         value = [value]
@@ -61,9 +97,14 @@ def _entries(value: Any, key: str, path: Path) -> list[Entry]:
         if isinstance(item, str):
             out.append(Entry(item))
         elif isinstance(item, dict) and "name" in item:
-            unknown = set(item) - {"name", "options", "data_root", "label", "datasets"}
+            unknown = sorted(set(item) - set(_ENTRY_KEYS))
             if unknown:
-                raise ConfigError(f"{path}: unknown keys {sorted(unknown)} in '{key}' entry {item}")
+                raise ConfigError(
+                    f"{path}: unknown keys {unknown} in '{key}' entry {item}: "
+                    + ", ".join(suggest(k, _ENTRY_KEYS) for k in unknown),
+                    f"an entry's keys: {', '.join(_ENTRY_KEYS)}",
+                )
+            _check_entry(item, key, path)
             only = item.get("datasets")
             if isinstance(only, str):
                 only = [only]
@@ -99,24 +140,13 @@ def pairs(spec: SweepSpec, methods: list[Entry]) -> list[tuple[int, Entry, int, 
 
 def load_sweep(path: Path) -> SweepSpec:
     data = read_yaml(path)
-    unknown = set(data) - {
-        "name",
-        "profile",
-        "methods",
-        "datasets",
-        "splits",
-        "contexts",
-        "seeds",
-        "metrics",
-        "frame",
-        "context_normals",
-        "protocol",
-        "crop_fraction",
-        "context_noise",
-        "launcher",
-    }
+    unknown = sorted(set(data) - set(_SWEEP_KEYS))
     if unknown:
-        raise ConfigError(f"{path}: unknown keys {sorted(unknown)}")
+        raise ConfigError(
+            f"{path}: unknown keys {unknown}: "
+            + ", ".join(suggest(k, _SWEEP_KEYS) for k in unknown),
+            f"a sweep file's keys: {', '.join(_SWEEP_KEYS)}",
+        )
     for key in ("methods", "datasets"):
         if key not in data:
             raise ConfigError(f"{path}: '{key}' is required")
@@ -225,6 +255,14 @@ def _launcher_block(value: Any, path: Path) -> dict[str, Any]:
             f"{path}: 'launcher' is a name or a mapping like "
             "{name: slurm, partition: gpu, time: 120}"
         )
+    # Checked when the file is read, whichever launcher runs it: a wrong key or type is named
+    # here, not ignored by an inline run or found when the cluster jobs are submitted.
+    from shapebench.sweeps.cluster import launcher_config
+
+    try:
+        launcher_config(dict(value), {}, None)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc.message}", exc.hint) from None
     return dict(value)
 
 
@@ -239,6 +277,13 @@ def sweep_methods(spec: SweepSpec) -> list[Entry]:
         registry.get("method", m.name)
     for ds in spec.datasets:
         registry.get("dataset", ds.name)
+    # An entry's options (and -D's) are checked against the plugin's here too, before any work:
+    # a typo or a wrong type would otherwise fail that entry's runs after the others had run.
+    for kind, entries in (("method", methods), ("dataset", spec.datasets)):
+        for e in entries:
+            if e.options:
+                cls = registry.load(kind, e.name)
+                opts.build(cls.Options, e.options, f"{kind} {e.name!r} of sweep {spec.name!r}")
     return list(methods)
 
 

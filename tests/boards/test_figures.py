@@ -247,7 +247,7 @@ def test_row_costs_from_real_training_runs_and_per_object_seconds(tmp_path):
 
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_leaderboard_writes_figures_and_cost_columns_and_logs_them(with_example):
-    from shapebench.boards.leaderboard import build_board
+    from shapebench.boards.leaderboard import BoardQuery, build_board
     from shapebench.config import make_settings
     from shapebench.store.tracking import Tracker
 
@@ -286,7 +286,7 @@ def test_leaderboard_writes_figures_and_cost_columns_and_logs_them(with_example)
     # The figures of this store, counted: one line per row, three context sizes each.
     settings = make_settings(sb.tracking_uri, sb.cache, "quick", sb.workspace)
     tracker = Tracker(settings)
-    board = build_board(tracker, "synthetic", "novel", "gauss", None)
+    board = build_board(tracker, BoardQuery("synthetic", "gauss"), "novel")
     drawn = figures.board_figures(board)
     assert figures.line_count(drawn["chamfer"]) == 2
     assert all(len(line.get_xdata()) == 3 for line in drawn["chamfer"].axes[0].get_lines())

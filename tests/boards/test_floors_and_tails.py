@@ -195,12 +195,12 @@ def tiny_store(tmp_path_factory):
 
 @pytest.mark.slow  # builds an MLflow store: about 6 s
 def test_a_board_marks_rows_below_the_floor_and_writes_tails_and_categories(tiny_store):
-    from shapebench.boards.leaderboard import build_board
+    from shapebench.boards.leaderboard import BoardQuery, build_board
     from shapebench.boards.markdown import render_markdown
     from shapebench.boards.tidy import category_csv, tidy_csv
 
     tracker, floor = tiny_store
-    board = build_board(tracker, "synthetic", "novel", "given-points", None)
+    board = build_board(tracker, BoardQuery("synthetic", "given-points"), "novel")
     md = render_markdown(board, "shapebench leaderboard", "uri")
     lines = {
         label: next(line for line in md.splitlines() if f"(`{label}`)" in line)
@@ -231,12 +231,12 @@ def test_a_board_marks_rows_below_the_floor_and_writes_tails_and_categories(tiny
     assert raw.loc["bad", "category_mean"] == pytest.approx(cats.loc["bad", "mean"].mean())
 
     # --floor none, and floors without rows: no marks, no error
-    for floors in ([], ["retrieval"]):
-        none = build_board(tracker, "synthetic", "novel", "given-points", None, floors=floors)
+    for floors in ((), ("retrieval",)):
+        none = build_board(tracker, BoardQuery("synthetic", "given-points", floors=floors), "novel")
         assert none.floors is None and "†" not in render_markdown(none, "c", "u")
         assert tidy_csv(none)["below_floor"].isna().all()
     # --tail-threshold overrides the card's
-    other = build_board(tracker, "synthetic", "novel", "given-points", None, tail=20.0)
+    other = build_board(tracker, BoardQuery("synthetic", "given-points", tail=20.0), "novel")
     share = tidy_csv(other).set_index(["kind", "label"]).loc[("raw", "bad"), "tail_share"]
     assert share == pytest.approx(np.mean(bad > 20))
 
@@ -244,10 +244,10 @@ def test_a_board_marks_rows_below_the_floor_and_writes_tails_and_categories(tiny
 @pytest.mark.slow  # builds an MLflow store and the page
 def test_the_report_says_which_rows_are_not_better_than_the_floor(tiny_store):
     from shapebench.boards.html_report import Section, floor_sentences, render_html
-    from shapebench.boards.leaderboard import build_board
+    from shapebench.boards.leaderboard import BoardQuery, build_board
 
     tracker, _ = tiny_store
-    board = build_board(tracker, "synthetic", "novel", "given-points", None)
+    board = build_board(tracker, BoardQuery("synthetic", "given-points"), "novel")
     assert floor_sentences(board) == [
         "At 1000 points 1 of 2 rows are not better than the floor (given-points): bad."
     ]

@@ -194,14 +194,14 @@ def test_report_and_its_figures_are_logged_to_mlflow(store):
 def test_each_rows_worst_object_is_named_and_pictured_where_its_cell_pictured_it(store):
     """Per row its worst (object, seed) at the largest size, read from the per-object tables,
     and pictured from the cell's own picture of it."""
-    from shapebench.boards.leaderboard import build_board
+    from shapebench.boards.leaderboard import BoardQuery, build_board
     from shapebench.boards.report_pictures import worst_pictures
     from shapebench.config import make_settings
     from shapebench.store.tracking import Tracker
 
     settings = make_settings(store.tracking_uri, store.cache, "quick", store.workspace)
     tracker = Tracker(settings)
-    board = build_board(tracker, "synthetic", "novel", "gauss", None)
+    board = build_board(tracker, BoardQuery("synthetic", "gauss"), "novel")
     worst = worst_pictures(tracker, board)
     assert [w[0] for w in worst] == [r.label for r in board.rows]
     pictured = 0
@@ -254,6 +254,7 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     from shapebench.api.method import Method
     from shapebench.api.types import NOVEL, Completion
     from shapebench.boards.html_report import build_report
+    from shapebench.boards.leaderboard import BoardQuery
     from shapebench.config import make_settings
     from shapebench.evaluation.plan import RunPlan
     from shapebench.evaluation.runner import Runner
@@ -302,7 +303,9 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     assert arrays["spread"].shape == (len(arrays["completion"]),)
     assert np.corrcoef(arrays["completion"][:, 1], arrays["spread"])[0, 1] > 0.5  # taller: wider
 
-    page, seconds = build_report(settings, "primitives", None, "posterior", None, tmp_path / "o")
+    page, seconds = build_report(
+        settings, BoardQuery("primitives", "posterior"), None, tmp_path / "o"
+    )
     text = page.read_text()
     assert "Posterior uncertainty" in text
     assert text.count('alt="posterior, 50 points: box"') == 1

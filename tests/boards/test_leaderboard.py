@@ -8,7 +8,7 @@ import pytest
 from conftest import TINY, TINY_CONTEXTS
 
 from shapebench.api.errors import ShapebenchError
-from shapebench.boards.leaderboard import build_board
+from shapebench.boards.leaderboard import BoardQuery, build_board
 from shapebench.config import make_settings
 from shapebench.store.records import CellRecord
 from shapebench.store.tracking import Tracker
@@ -134,7 +134,7 @@ def test_leaderboard_refuses_to_mix_metric_cards(tmp_path):
         ShapebenchError,
         match="different cards.*used by a.*used by b|different cards.*used by b.*used by a",
     ):
-        build_board(tracker, "synthetic", "novel", "a", "chamfer-l2")
+        build_board(tracker, BoardQuery("synthetic", "a", "chamfer-l2"), "novel")
 
 
 def test_a_row_lists_its_seeds_and_each_seeds_checkpoint():

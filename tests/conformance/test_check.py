@@ -258,7 +258,11 @@ def test_every_builtin_passes(shapebench):
         ln.split(" (")[0] for ln in res.stdout.splitlines() if ln.endswith("(shapebench 0.1.0)")
     ]
     assert titles[0] == "method convonet" and titles[-1] == "metric normal-consistency"
-    assert len(titles) == 30  # 12 methods, 7 datasets, 11 metrics
+    assert len(titles) == 31  # 13 methods, 7 datasets, 11 metrics
+    # A method that reads a user's input is checked up to its options, then says what it needs.
+    files = _status(res.stdout, "method files")
+    assert files["options"].startswith("PASS")
+    assert files["complete"].startswith("SKIP: needs completions from a user's export folder")
     assert _status(res.stdout, "metric emd")["identical"].startswith("PASS")
     assert _status(res.stdout, "metric dcd")["identical"].startswith("PASS")
     pcn = _status(res.stdout, "method pcn")
