@@ -91,6 +91,43 @@ def test_completions_from_outside_score_as_the_built_in_row_and_share_its_table(
     assert "p_vs_best" in csv.columns  # the paired test against the best row
 
 
+@pytest.mark.slow  # runs a sweep of two local workers
+def test_the_exported_contexts_are_those_a_two_worker_sweep_hands_its_methods(shapebench):
+    """Every files cell checks each context it is handed against the exported one's SHA-256 and
+    fails that object otherwise: a sweep in two worker processes that scores every object, with
+    the built-in row's scores, was handed the exported contexts."""
+    sb = shapebench
+    folder = sb.workspace / "exported"
+    _export(sb, folder)
+    _complete_outside(folder)
+    options = dict(pair.split("=") for pair in TINY[1::2])
+    sweep = sb.workspace / "byo.yaml"
+    sweep.write_text(
+        textwrap.dedent(
+            f"""
+            name: byo
+            methods:
+              - {{name: files, label: outside, options: {{root: "{folder}"}}}}
+              - {{name: gauss, options: {{sigma: 0.0}}}}
+            datasets:
+              - name: synthetic
+                options: {{{", ".join(f"{k}: {v}" for k, v in options.items())}}}
+            splits: [novel]
+            contexts: [50, 100]
+            seeds: [0]
+            """
+        )
+    )
+    res = sb("sweep", str(sweep), "-q", "--launcher", "local", "-j", "2")
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    table = _results(sb)
+    keys = ["object", "context", "seed"]
+    ours = table[table["label"] == "outside"].set_index(keys).sort_index()
+    theirs = table[table["label"] == "gauss[sigma=0]"].set_index(keys).sort_index()
+    assert len(ours) == len(theirs) == 8 and not ours["failed"].any(), ours["reason"]
+    np.testing.assert_allclose(ours["chamfer-l2"], theirs["chamfer-l2"], rtol=1e-6, atol=0)
+
+
 @pytest.mark.slow  # runs the CLI in subprocesses
 def test_bad_files_fail_their_objects_by_name_and_the_good_ones_score(shapebench):
     sb = shapebench
