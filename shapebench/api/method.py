@@ -124,6 +124,10 @@ class Method(ABC):
     #: code the method imports); their code is hashed into cell and checkpoint keys together with
     #: the packages of the class and its bases (see :mod:`shapebench.registry.code_digest`).
     code_modules: ClassVar[tuple[str, ...]] = ()
+    #: Modules that shape the completions but not the training (mesh extraction, surface
+    #: sampling): hashed into cell keys only, so an edit there computes the cells again and
+    #: keeps every checkpoint (:func:`shapebench.registry.code_digest.completion_digest`).
+    completion_modules: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, options: Any | None = None) -> None:
         self.options = options if options is not None else self.Options()

@@ -46,6 +46,12 @@ class ImplicitMethod(_LightningMethod):
 
     #: Whether the field is negative inside (an SDF) rather than positive (logits).
     inside_is_negative: ClassVar[bool] = True
+    #: Marching cubes and the area-weighted sampler make the completion from the field: in the
+    #: cell keys, not in the checkpoint keys (a training never meshes).
+    completion_modules: ClassVar[tuple[str, ...]] = (
+        "shapebench.geometry.meshing",
+        "shapebench.geometry.sampling",
+    )
     #: Recipe name -> option values that fill the options left at ``None`` (see
     #: :func:`shapebench.implicit.recipes.apply_recipe`); None: the options have no recipe.
     recipes: ClassVar[dict[str, dict[str, Any]] | None] = None

@@ -11,6 +11,11 @@ hashes the source files of
   :class:`~shapebench.train.lightning_method.LightningMethod`) contributes its own module file
   only, so unrelated core edits do not invalidate every result;
 * the modules the class names in ``code_modules`` (shared training code it imports).
+
+A second digest, :func:`completion_digest`, covers the modules a class names in
+``completion_modules``: code that shapes its completions but not its training (mesh extraction,
+surface sampling). It enters cell keys only, so an edit there computes the cells again without
+retraining (the checkpoint key holds :func:`code_digest` alone).
 """
 
 from __future__ import annotations
@@ -82,3 +87,12 @@ def code_digest(cls: type) -> str:
     """SHA-256 (16 hex digits) over the source files ``cls``'s behaviour comes from; it depends
     on the files' contents and their names within their packages, not on where they live."""
     return _digest_files(tuple(sorted(digest_sources(cls).items())))
+
+
+def completion_digest(cls: type) -> str:
+    """SHA-256 (16 hex digits) over the sources of ``cls.completion_modules``, or "" when it
+    names none (then cell keys are as they were before the digest existed)."""
+    named: dict[str, Path] = {}
+    for name in sorted(getattr(cls, "completion_modules", ()) or ()):
+        named.update(_module_sources(name))
+    return _digest_files(tuple(sorted(named.items()))) if named else ""

@@ -45,6 +45,12 @@ class ResolvedMethod:
 
         return code_digest(self.cls)
 
+    @functools.cached_property
+    def _completion_code(self) -> str:
+        from shapebench.registry.code_digest import completion_digest
+
+        return completion_digest(self.cls)
+
     def effective_options(self) -> Any:
         """The options as the method instance holds them: values a method fills in itself
         (recipe-dependent ``None`` options) are resolved, so params and keys show what ran."""
@@ -55,14 +61,19 @@ class ResolvedMethod:
         return getattr(self.instantiate(), "options", self.options)
 
     def config(self) -> dict[str, Any]:
+        """What determines a cell's completions: the training's inputs and the completion code
+        (``completion_code``, only for a method that names ``completion_modules``)."""
         plugin = self.registration.plugin
-        return {
+        cfg = {
             "name": self.name,
             "options": opts.as_dict(self.effective_options()),
             "distribution": plugin.distribution,
             "version": plugin.version,
             "code": self.code(),
         }
+        if self._completion_code:
+            cfg["completion_code"] = self._completion_code
+        return cfg
 
     def overrides(self) -> dict[str, Any]:
         """The options this run sets differently from the profile's defaults."""

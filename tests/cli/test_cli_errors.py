@@ -20,7 +20,9 @@ def _clean_error(res, *needles: str) -> None:
 
 def test_unknown_method_lists_available(shapebench):
     res = shapebench("run", "--method", "nope", "--dataset", "synthetic")
-    _clean_error(res, "unknown method 'nope'", "available: convonet, deepsdf, files, gauss, igr, msc,")
+    _clean_error(
+        res, "unknown method 'nope'", "available: convonet, deepsdf, files, gauss, igr, msc,"
+    )
 
 
 def test_unknown_dataset_lists_available(shapebench):

@@ -219,8 +219,8 @@ def test_code_digest_does_not_depend_on_where_the_code_lives(tmp_path, monkeypat
 
 
 #: Imports a digest knowingly leaves out (file that imports -> module it imports), each with why.
-#: The mesh extraction shapes the implicit methods' completions but not their trainings; covering
-#: it moves every implicit checkpoint key, which is for the next retraining of them all.
+#: The implicit methods cover the mesh extraction through ``completion_modules`` (cell keys);
+#: PCN hashes the implicit package for its networks and never meshes.
 KNOWN_UNCOVERED = {("shapebench.implicit/completion.py", "shapebench.geometry.meshing")}
 
 
@@ -253,8 +253,11 @@ def test_every_builtin_method_key_covers_the_code_its_plugin_imports():
         registration = registry.get("method", name)
         if registration.plugin.distribution != "shapebench":
             continue  # a third party's holes are its own
-        sources = digest_sources(registration.load())
-        covered = {path.resolve() for path in sources.values()}
+        cls = registration.load()
+        sources = digest_sources(cls)
+        # The completion code (mesh extraction, sampling) is covered by the cell key alone.
+        completion = {f.resolve() for m in cls.completion_modules for _, f in _module_sources(m)}
+        covered = {path.resolve() for path in sources.values()} | completion
         for label, path in sorted(sources.items()):
             if "/" not in label:
                 continue  # a core file (``module.py``): stands for itself
@@ -264,7 +267,9 @@ def test_every_builtin_method_key_covers_the_code_its_plugin_imports():
                 if not module.startswith("shapebench"):
                     continue  # torch, numpy: versions are keyed apart
                 files = {f.resolve() for _, f in _module_sources(module)}
-                if not files <= covered and (label, module) not in KNOWN_UNCOVERED:
+                meshes = bool(cls.completion_modules)
+                exempt = (label, module) in KNOWN_UNCOVERED and not meshes
+                if not files <= covered and not exempt:
                     missing.append(f"{name}: {label} imports {module}, not in its digest")
     assert not missing, "\n".join(sorted(set(missing)))
 
@@ -812,3 +817,21 @@ def test_the_validation_split_is_apart_from_the_test_objects_and_run_only_when_n
     assert len(runs) == 1
     res = shapebench("run", "-m", "gauss", "-d", "synthetic", *TINY, "--split", "valid")
     assert res.returncode == 2 and "use one of: trained, novel, validation" in res.stderr
+
+
+def test_the_completion_code_is_in_the_cell_key_and_not_the_checkpoint_key():
+    """Mesh extraction and sampling shape an implicit row's cells but not its training: their
+    digest is in the cell's method config, not in the training's, and a method that names no
+    completion modules has the config it had before the digest existed."""
+    from shapebench.config import make_settings
+    from shapebench.registry.code_digest import completion_digest, digest_sources
+    from shapebench.registry.discovery import get_registry
+    from shapebench.registry.resolve import resolve_method
+
+    registry, settings = get_registry(), make_settings()
+    igr = resolve_method(registry, "igr", settings)
+    assert igr.config()["completion_code"] == completion_digest(igr.cls) != ""
+    assert "completion_code" not in igr.training_config()
+    assert not any("meshing" in name for name in digest_sources(igr.cls))
+    gauss = resolve_method(registry, "gauss", settings)
+    assert "completion_code" not in gauss.config() and completion_digest(gauss.cls) == ""
