@@ -25,14 +25,32 @@ cell key, recorded as run tags and printed in the leaderboard header.
   scales completion and ground truth by 1/2 before scoring (squared distances by 1/4), the scale
   of ShapeNet v2's normalisation and of the paper's tables (see docs/metrics.md).
 
-What a cell key promises about its scores (:data:`SCORE_RTOL`): computed twice with the same
-number of torch threads on one machine (a rerun, a resumed sweep, ``--force``), a cell gives
-bitwise the same scores. Computed with another thread count (``--launcher local -j N`` gives each
-worker ``cores // N`` threads, a SLURM job its ``cpus_per_task``) or on another machine, float
-reductions are summed in another order and latent optimisation carries the last-bit differences
-forward, so the scores agree to a relative :data:`SCORE_RTOL`, not bitwise. Pinning every cell to
-one thread count would buy bitwise equality across launchers on one machine only (other CPUs run
-other SIMD kernels) at the cost of idle cores, so the contract is the tolerance.
+What a cell key promises about its scores (:data:`SCORE_RTOL`, :data:`MESHED_RTOL`): computed
+twice with the same number of torch threads on one machine (a rerun, a resumed sweep,
+``--force``), a cell gives bitwise the same scores. With another thread count (``--launcher
+local -j N`` gives each worker ``cores // N`` threads, a SLURM job its ``cpus_per_task``) or on
+another CPU, last bits differ: oneDNN's convolutions block by thread count (OccNet's 1x1
+``Conv1d`` layers: every field value, up to 1e-5 in logits), elementwise kernels compute the
+elements at each thread's chunk boundary in scalar code (IGR's Softplus: one ulp, carried
+through the 50-step search to about 2e-7 in the code of the object at the end of a batch), and
+another CPU's SIMD kernels round every operation differently. Where a method's completion is
+sampled from a mesh, those bits move the marching-cubes vertices (1e-5) and, through the
+cumulative-area face picks of the sampler, switch a few of the 30,000 picks to other triangles:
+that, not the vertices (1e-8), moves a score (benchmarks/thread_scores.py). Where a test-time
+search precedes the mesh (IGR, DeepSDF, MSC), Adam's per-coordinate normalisation carries
+another CPU's rounding to 1e-4 in the code, the mesh's topology changes and the picks are
+drawn afresh: the score moves within its resampling noise (0.5 to 1.6 % for one object).
+
+So the contract is per row kind, measured (benchmarks/README.md, "Thread counts and scores"):
+a method whose completion is not sampled from a mesh agrees to :data:`SCORE_RTOL` per object
+across thread counts and machines; a meshed one agrees to :data:`MESHED_RTOL` per object
+across thread counts on one machine, and its cell means to :data:`SCORE_RTOL`; across machines
+(a CPU with other SIMD kernels) a meshed row's per-object scores are the same sample of the
+same completion distribution, not the same numbers (measured up to 8e-4 for OccNet and 4.4e-3
+for IGR per object, 2e-4 on a mean of 8 objects), and are compared as such (a paired test), not
+by a tolerance. Pinning every cell to one thread count would buy bitwise equality on one machine
+only, at the cost of idle cores; a sampler without cumulative picks would make rarer but larger
+jumps (one of 30,000 points redrawn anywhere), not none.
 """
 
 from __future__ import annotations
@@ -59,10 +77,18 @@ DEFAULT_FRAME = "unit-radius"
 #: The frame whose values are comparable with the paper's published figures.
 PAPER_FRAME = "unit-diameter"
 
-#: Relative tolerance within which two computations of one cell key agree across launchers,
-#: thread counts and machines (see the module docstring). The launcher tests measured 8e-8
-#: (IGR, 50 latent-optimisation steps, 1 against 2 threads); the margin covers longer searches.
+#: Relative tolerance within which two computations of one cell key agree per object across
+#: launchers, thread counts and machines for a row whose completion is not sampled from a mesh,
+#: and per cell mean for a meshed row on one machine (see the module docstring). Measured: PCN
+#: 3e-7 per object; meshed rows' means over 8 objects at 1 against 2 threads 1.2e-6 (IGR) and
+#: 7e-6 (OccNet); the launcher tests 4.3e-8 (their quick IGR row).
 SCORE_RTOL = 1e-5
+
+#: Per-object relative tolerance of a meshed row (IGR, DeepSDF, MSC, OccNet, ConvONet...) across
+#: thread counts on one machine: a few of the completion's 30,000 face picks switch triangle.
+#: Measured at 1 against 2 threads (standard weights, 50 context points, 40 objects): IGR 5.9e-5
+#: (2 of 32 objects, each the last of its batch), OccNet 5.0e-5 (8 of 8); twice that, and more.
+MESHED_RTOL = 2e-4
 
 
 def scores_agree(a: float, b: float, rtol: float = SCORE_RTOL) -> bool:

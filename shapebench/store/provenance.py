@@ -36,14 +36,17 @@ def git_commit() -> str:
 
 def run_context_tags() -> dict[str, str]:
     """MLflow's standard tags and this process's provenance, on every run shapebench starts:
-    the torch thread count too once torch is loaded (it is set per worker and decides whether
-    two computations of a cell agree bitwise or to the key's tolerance)."""
+    the torch thread count and CPU kernels too once torch is loaded (they decide whether two
+    computations of a cell agree bitwise or to the key's tolerance)."""
     import sys
 
     tags = dict(_process_tags())
     torch = sys.modules.get("torch")
     if torch is not None and hasattr(torch, "get_num_threads"):
         tags[rec.HOST_TORCH_THREADS_TAG] = str(torch.get_num_threads())
+        capability = getattr(getattr(torch.backends, "cpu", None), "get_cpu_capability", None)
+        if capability is not None:
+            tags[rec.HOST_TORCH_CPU_CAPABILITY_TAG] = str(capability())
     return tags
 
 

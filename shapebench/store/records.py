@@ -88,6 +88,9 @@ HOST_MEMORY_TAG = "host.memory_gb"
 HOST_GPUS_TAG = "host.gpus"
 #: Torch's intra-op threads when the run started (``sweep --threads``, a worker's share).
 HOST_TORCH_THREADS_TAG = "host.torch_threads"
+#: The SIMD kernels torch dispatches to on this CPU (``AVX2``, ``AVX512``, ``DEFAULT``): two
+#: machines with different ones round differently (docs: api/protocol.py, MESHED_RTOL).
+HOST_TORCH_CPU_CAPABILITY_TAG = "host.torch_cpu_capability"
 #: The tag of a cell naming the training run its checkpoint came from.
 TRAINING_RUN_TAG = "training_run_id"
 METRIC_ERRORS_TAG = "shapebench.metric_errors"

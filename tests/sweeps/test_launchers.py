@@ -56,6 +56,11 @@ def test_threads_sets_the_torch_threads_of_workers_and_of_the_inline_sweep(shape
     assert "1 workers, 1 torch threads each" in res.stdout
     [run] = sb.cell_runs("synthetic-trained")
     assert run.data.tags["host.torch_threads"] == "1"
+    # The CPU kernels torch dispatched to: what tells "another machine" from "another count".
+    import torch
+
+    capability = torch.backends.cpu.get_cpu_capability()
+    assert run.data.tags["host.torch_cpu_capability"] == capability
     res = sb("sweep", str(sweep), "-q", "--force", "--threads", "1")
     assert res.returncode == 0, res.stderr[-3000:]
     threads = [r.data.tags["host.torch_threads"] for r in sb.cell_runs("synthetic-trained")]
