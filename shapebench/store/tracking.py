@@ -213,7 +213,16 @@ class Tracker:
             profile=json.dumps(profile, default=str),
         )
         tags = [InputTag(key=rec.DATASET_CONTEXT_TAG, value=context)]
-        self.client.log_inputs(run_id, datasets=[DatasetInput(dataset=dataset, tags=tags)])
+        inputs = [DatasetInput(dataset=dataset, tags=tags)]
+        try:
+            self.client.log_inputs(run_id, datasets=inputs)
+        except Exception as exc:
+            # Two workers logging the same dataset at once: MLflow's store looks it up, finds
+            # none, and both insert it; the second insert breaks the table's unique key. The
+            # dataset exists now, so the same call links it to this run.
+            if "UNIQUE constraint failed: datasets." not in str(exc):
+                raise
+            self.client.log_inputs(run_id, datasets=inputs)
 
     def end(self, run_id: str, status: str = "FINISHED") -> None:
         self.client.set_terminated(run_id, status=status)
