@@ -23,7 +23,8 @@ value counts as a difference.
 It prints one line per (dataset/split, label, context size, seed, metric) present in both
 stores: the objects paired, the largest absolute and relative difference (relative to the larger
 magnitude, as :func:`~shapebench.api.protocol.scores_agree`), how many objects differ by more
-than ``--rtol`` and how many objects of the row only one store has; then the rows only one store
+than ``--rtol``, how many objects of the row only one store has, and how far the row's mean
+over the paired objects moved (``mean rel``: what a table shows); then the rows only one store
 has, per label, and each label's largest relative difference. The data versions (fingerprints)
 each store's selection used head each section: a quickstart (``-D test_per_category=4``)
 evaluates another data version than the full sweep, whose first objects are the same objects.
@@ -114,16 +115,19 @@ def scored_long(
 
 
 def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """|a - b| relative to the larger magnitude (0 where both are 0), as ``scores_agree``."""
+    """|a - b| relative to the larger magnitude (0 where both are 0, NaN where one is NaN), as
+    ``scores_agree``."""
     scale = np.maximum(np.abs(a), np.abs(b))
     diff = np.abs(a - b)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(scale > 0, diff / scale, 0.0)
+        return np.where(np.isnan(scale), np.nan, np.where(scale > 0, diff / scale, 0.0))
 
 
 def compare(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> pd.DataFrame:
     """One row per :data:`ROW` key in either store: ``paired``, ``max_abs``, ``max_rel``,
-    ``over`` (objects over ``rtol``, NaN against a value included), ``only_a``, ``only_b``."""
+    ``over`` (objects over ``rtol``, NaN against a value included), ``only_a``, ``only_b``, and
+    ``mean_rel``: the relative difference of the two means over the objects scored in both (what
+    a table's mean moves by)."""
     both = a.merge(b, on=PAIR, how="outer", suffixes=("_a", "_b"), indicator=True)
     va, vb = both["value_a"].to_numpy(float), both["value_b"].to_numpy(float)
     paired = (both["_merge"] == "both").to_numpy()
@@ -133,10 +137,12 @@ def compare(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> pd.DataFrame:
     both["paired"] = paired
     both["abs"] = np.where(finite, np.abs(va - vb), np.nan)
     both["rel"] = np.where(finite, relative(np.nan_to_num(va), np.nan_to_num(vb)), np.nan)
+    both["a_paired"] = np.where(finite, va, np.nan)
+    both["b_paired"] = np.where(finite, vb, np.nan)
     both["over"] = one_nan | (finite & (both["rel"].to_numpy() > rtol))
     both["only_a"] = (both["_merge"] == "left_only").to_numpy()
     both["only_b"] = (both["_merge"] == "right_only").to_numpy()
-    return (
+    rows = (
         both.groupby(ROW, dropna=False)
         .agg(
             paired=("paired", "sum"),
@@ -145,9 +151,13 @@ def compare(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> pd.DataFrame:
             over=("over", "sum"),
             only_a=("only_a", "sum"),
             only_b=("only_b", "sum"),
+            mean_a=("a_paired", "mean"),
+            mean_b=("b_paired", "mean"),
         )
         .reset_index()
     )
+    rows["mean_rel"] = relative(rows["mean_a"].to_numpy(float), rows["mean_b"].to_numpy(float))
+    return rows
 
 
 def fmt(value: float) -> str:
@@ -168,7 +178,7 @@ def report(
     width = max([28, *(len(str(label)) for label in rows["label"])])
     head = (
         f"{'label':<{width}} {'k':>5} {'seed':>4} {'metric':<16} {'paired':>6} {'max abs':>9} "
-        f"{'max rel':>9} {f'>{rtol:g}':>7} {'only a':>6} {'only b':>6}"
+        f"{'max rel':>9} {f'>{rtol:g}':>7} {'only a':>6} {'only b':>6} {'mean rel':>9}"
     )
     for section, group in paired.groupby(SECTION, sort=True):
         shown = group[group["over"] > 0] if failing else group
@@ -183,7 +193,8 @@ def report(
         for r in shown.itertuples():
             lines.append(
                 f"{r.label:<{width}} {r.context:>5} {r.seed:>4} {r.metric:<16} {r.paired:>6} "
-                f"{fmt(r.max_abs):>9} {fmt(r.max_rel):>9} {r.over:>7} {r.only_a:>6} {r.only_b:>6}"
+                f"{fmt(r.max_abs):>9} {fmt(r.max_rel):>9} {r.over:>7} {r.only_a:>6} {r.only_b:>6} "
+                f"{fmt(r.mean_rel):>9}"
             )
         if failing and shown.empty:
             lines.append(f"(all {len(group)} rows within {rtol:g})")
@@ -201,11 +212,15 @@ def report(
     if not paired.empty:
         lines += ["", f"largest relative difference per label ({rtol:g}: --rtol)"]
         worst = paired.groupby("label").agg(
-            max_rel=("max_rel", "max"), over=("over", "sum"), paired=("paired", "sum")
+            max_rel=("max_rel", "max"),
+            mean_rel=("mean_rel", "max"),
+            over=("over", "sum"),
+            paired=("paired", "sum"),
         )
         for label, r in worst.sort_values("max_rel", ascending=False).iterrows():
             lines.append(
-                f"  {label:<{width}} {fmt(r.max_rel):>9}  {int(r.over)} of {int(r.paired)} over"
+                f"  {label:<{width}} {fmt(r.max_rel):>9}  {int(r.over)} of {int(r.paired)} "
+                f"over; mean moved by {fmt(r.mean_rel)} at most"
             )
     return lines
 

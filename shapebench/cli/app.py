@@ -286,6 +286,9 @@ def _protocol(
 
 
 def _exit_if_all_failed(outcomes) -> None:
+    """Exit 1 when every object of some cell failed (a local sweep's worker: its own status,
+    :data:`shapebench.sweeps.launchers.ALL_FAILED_STATUS`, which the launcher tells from a
+    crash)."""
     bad = [(o, c) for o in outcomes for c in o.all_failed_cells]
     if bad:
         cells = ", ".join(
@@ -298,7 +301,9 @@ def _exit_if_all_failed(outcomes) -> None:
         click.echo(
             "  the reasons are listed above; the runs are kept in MLflow as evidence", err=True
         )
-        sys.exit(1)
+        from shapebench.sweeps.launchers import ALL_FAILED_STATUS, WORKER_ENV
+
+        sys.exit(ALL_FAILED_STATUS if os.environ.get(WORKER_ENV) else 1)
 
 
 def _argv_after(command: str) -> list[str]:

@@ -32,6 +32,13 @@ from pathlib import Path
 LAUNCHER_FLAGS = {"--launcher": True, "--jobs": True, "-j": True, "--slurm": True}
 
 
+#: Set in the environment of ``--launcher local``'s workers: a worker in which every object of
+#: some cell failed exits with :data:`ALL_FAILED_STATUS` (its summary says which), so that any
+#: other non-zero status, Python's 1 for an uncaught exception included, is a crashed worker.
+WORKER_ENV = "SHAPEBENCH_SWEEP_WORKER"
+ALL_FAILED_STATUS = 3
+
+
 def worker_argv(argv: list[str], index: int) -> list[str]:
     """The sweep's command line for worker ``index``: launcher options replaced by ``--launcher
     inline --worker index`` (``argv`` without the program name)."""
@@ -70,6 +77,11 @@ def use_threads(threads: int) -> None:
     torch.set_num_threads(threads)
 
 
+def worker_command(argv: list[str], index: int) -> list[str]:
+    """The command line of ``--launcher local``'s worker ``index``."""
+    return [sys.executable, "-m", "shapebench", "sweep", *worker_argv(argv, index)]
+
+
 def run_local(
     argv: list[str],
     jobs: int,
@@ -87,11 +99,12 @@ def run_local(
     env = dict(os.environ)
     threads = threads_per_worker(jobs, threads_each)
     env.update(thread_env(threads), PYTHONSAFEPATH="1")
+    env[WORKER_ENV] = "1"
     procs: list[tuple[subprocess.Popen, Path]] = []
     for i in range(jobs):
         log = log_dir / f"sweep-{stamp}-worker{i}.log"
         with open(log, "w") as out:
-            cmd = [sys.executable, "-m", "shapebench", "sweep", *worker_argv(argv, i)]
+            cmd = worker_command(argv, i)
             proc = subprocess.Popen(
                 cmd, env=env, stdout=out, stderr=subprocess.STDOUT, preexec_fn=die_with_parent()
             )
@@ -111,7 +124,7 @@ def run_local(
         raise
     failed = 0
     for (_, log), code in zip(procs, codes, strict=True):
-        if code not in (0, 1):  # 1: some cell had every object fail, reported by the summary
+        if code not in (0, ALL_FAILED_STATUS):  # all-failed cells: reported by the summary
             failed += 1
             echo(f"worker exited with status {code}: see {log}")
     return failed

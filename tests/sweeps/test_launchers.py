@@ -42,6 +42,29 @@ seeds: [0]
 """
 
 
+def test_a_crashed_worker_is_a_failed_worker_and_all_failed_cells_are_not(tmp_path, monkeypatch):
+    """Python exits 1 on an uncaught exception; a worker whose cells all failed exits
+    ALL_FAILED_STATUS (its summary names them). A quickstart's worker died of a traceback and
+    the launcher, which took 1 for "all failed", said nothing: real processes, one per status."""
+    import sys
+
+    from shapebench.sweeps import launchers
+
+    statuses = {0: 0, 1: 1, 2: launchers.ALL_FAILED_STATUS}
+
+    def command(argv, index):
+        code = f"import os, sys; assert os.environ[{launchers.WORKER_ENV!r}] == '1'; "
+        return [sys.executable, "-c", code + f"sys.exit({statuses[index]})"]
+
+    monkeypatch.setattr(launchers, "worker_command", command)
+    said: list[str] = []
+    failed = launchers.run_local(["sweep.yaml"], 3, tmp_path, said.append, 1)
+    assert failed == 1
+    assert [line for line in said if "exited" in line] == [
+        f"worker exited with status 1: see {next(tmp_path.glob('*worker1.log'))}"
+    ]
+
+
 def test_threads_sets_the_torch_threads_of_workers_and_of_the_inline_sweep(shapebench, tmp_path):
     """``--threads 1`` with one local worker (which would get every core) and inline: the cell
     runs record the thread count they ran with; 0 is refused in one line."""
