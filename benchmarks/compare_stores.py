@@ -157,6 +157,16 @@ def compare(a: pd.DataFrame, b: pd.DataFrame, rtol: float) -> pd.DataFrame:
         .reset_index()
     )
     rows["mean_rel"] = relative(rows["mean_a"].to_numpy(float), rows["mean_b"].to_numpy(float))
+    # Across CPUs a meshed row's scores are another draw, not the same numbers: whether the two
+    # stores' scores differ systematically is the paired test's question, not a tolerance's.
+    from shapebench.boards.stats import paired_p
+
+    pairs = both[both["a_paired"].notna() & both["b_paired"].notna()]
+    p = {
+        key: paired_p(g["a_paired"].to_numpy(float), g["b_paired"].to_numpy(float))
+        for key, g in pairs.groupby(ROW, dropna=False)
+    }
+    rows["p"] = [p.get(tuple(r), float("nan")) for r in rows[ROW].itertuples(index=False)]
     return rows
 
 
@@ -178,7 +188,8 @@ def report(
     width = max([28, *(len(str(label)) for label in rows["label"])])
     head = (
         f"{'label':<{width}} {'k':>5} {'seed':>4} {'metric':<16} {'paired':>6} {'max abs':>9} "
-        f"{'max rel':>9} {f'>{rtol:g}':>7} {'only a':>6} {'only b':>6} {'mean rel':>9}"
+        f"{'max rel':>9} {f'>{rtol:g}':>7} {'only a':>6} {'only b':>6} {'mean rel':>9} "
+        f"{'paired p':>9}"
     )
     for section, group in paired.groupby(SECTION, sort=True):
         shown = group[group["over"] > 0] if failing else group
@@ -194,7 +205,7 @@ def report(
             lines.append(
                 f"{r.label:<{width}} {r.context:>5} {r.seed:>4} {r.metric:<16} {r.paired:>6} "
                 f"{fmt(r.max_abs):>9} {fmt(r.max_rel):>9} {r.over:>7} {r.only_a:>6} {r.only_b:>6} "
-                f"{fmt(r.mean_rel):>9}"
+                f"{fmt(r.mean_rel):>9} {fmt(r.p):>9}"
             )
         if failing and shown.empty:
             lines.append(f"(all {len(group)} rows within {rtol:g})")
@@ -216,11 +227,12 @@ def report(
             mean_rel=("mean_rel", "max"),
             over=("over", "sum"),
             paired=("paired", "sum"),
+            p=("p", "min"),
         )
         for label, r in worst.sort_values("max_rel", ascending=False).iterrows():
             lines.append(
                 f"  {label:<{width}} {fmt(r.max_rel):>9}  {int(r.over)} of {int(r.paired)} "
-                f"over; mean moved by {fmt(r.mean_rel)} at most"
+                f"over; mean moved by {fmt(r.mean_rel)} at most; smallest paired p {fmt(r.p)}"
             )
     return lines
 
