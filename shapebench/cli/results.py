@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from shapebench.api.errors import ShapebenchError
 from shapebench.cli.app import (
     _protocol,
     _settings,
@@ -268,7 +269,12 @@ def report(
     default=None,
     help="Only runs in this state.",
 )
-@click.option("--limit", default=1000, show_default=True, help="At most this many (newest).")
+@click.option(
+    "--limit",
+    default=1000,
+    show_default=True,
+    help="At most this many (the newest); 0: every run. Says so when it leaves runs out.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (one object per run).")
 @store_options
 def runs(
@@ -296,19 +302,26 @@ def runs(
       shapebench runs --kind training              # trainings and how long they took
       shapebench runs -m gauss --json | jq '.[].value'
     """
-    from shapebench.store.listing import format_rows, list_runs, rows_json
+    from shapebench.store.listing import format_rows, list_runs_counted, rows_json
 
+    if limit < 0:
+        raise ShapebenchError(f"--limit must be 0 (every run) or more, got {limit}")
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
-    rows = list_runs(settings, kind, method, dataset, split, status, context, limit)
+    rows, more = list_runs_counted(
+        settings, kind, method, dataset, split, status, context, limit or None
+    )
+    cut = f"the newest {limit}; older ones match too (--limit 0 lists every one)"
     if as_json:
         click.echo(rows_json(rows))
+        if more:
+            click.echo(f"note: {cut}", err=True)
         return
     if not rows:
         click.echo(f"No {kind if kind != 'all' else ''} runs match in {settings.tracking_uri}.")
         return
     for line in format_rows(rows):
         click.echo(line)
-    click.echo(f"{len(rows)} runs; details: shapebench show RUN_ID")
+    click.echo(f"{len(rows)} runs{f' ({cut})' if more else ''}; details: shapebench show RUN_ID")
 
 
 @cli.command()

@@ -151,16 +151,31 @@ def list_runs(
     split: str | None = None,
     status: str | None = None,
     context_size: int | None = None,
-    limit: int = 1000,
+    limit: int | None = 1000,
 ) -> list[RunRow]:
     """The store's runs of ``kind`` (or every kind with ``"all"``) matching the filters, sorted
-    by dataset, split, variant, context size and seed."""
+    by dataset, split, variant, context size and seed: the newest ``limit`` (None: all)."""
+    return list_runs_counted(settings, kind, method, dataset, split, status, context_size, limit)[0]
+
+
+def list_runs_counted(
+    settings: Settings,
+    kind: str = CELL_KIND,
+    method: str | None = None,
+    dataset: str | None = None,
+    split: str | None = None,
+    status: str | None = None,
+    context_size: int | None = None,
+    limit: int | None = 1000,
+) -> tuple[list[RunRow], bool]:
+    """:func:`list_runs`, and whether ``limit`` left older matching runs out (so that a
+    listing can say so instead of passing a cut for the whole)."""
     if kind != "all" and kind not in KINDS:
         raise ShapebenchError(f"unknown run kind {kind!r}", f"use one of: {', '.join(KINDS)}, all")
     client = _client(settings)
     experiments = _experiments(client)
     if not experiments:
-        return []
+        return [], False
     clauses = []
     if kind != "all":
         clauses.append(f"tags.`{rec.KIND_TAG}` = '{kind}'")
@@ -180,15 +195,17 @@ def list_runs(
         list(experiments),
         filter_string=" and ".join(clauses),
         order_by=["attributes.start_time DESC"],
-        limit=limit,
+        limit=None if limit is None else limit + 1,  # one more: are there more?
     )
+    more = limit is not None and len(runs) > limit
+    runs = runs[:limit] if more else runs
     primary: dict[tuple, str] = {}
     rows = [
         _row(r, experiments, primary)
         for r in runs
         if kind != "all" or r.data.tags.get(rec.KIND_TAG) in KINDS
     ]
-    return sorted(
+    ordered = sorted(
         rows,
         key=lambda r: (
             r.dataset,
@@ -200,6 +217,7 @@ def list_runs(
             r.start,
         ),
     )
+    return ordered, more
 
 
 def _quote(value: str) -> str:

@@ -117,6 +117,23 @@ def test_listing_shows_every_child_and_run(store, tmp_path):
     assert len(list_runs(tracker.settings, kind="cell", limit=PAGE + 1)) == PAGE + 1
 
 
+def test_a_listing_cut_by_its_limit_says_so(store):
+    """``runs --limit N`` on a store with more matching runs names the cut (a 10k store listed
+    "1000 runs" as if that were all); ``--limit 0`` lists every one."""
+    from click.testing import CliRunner
+
+    from shapebench.cli import cli
+
+    tracker, *_ = store
+    uri = ["--tracking-uri", tracker.uri]
+    out = CliRunner().invoke(cli, ["runs", "--limit", "2", *uri]).output
+    assert "2 runs (the newest 2; older ones match too (--limit 0 lists every one))" in out
+    out = CliRunner().invoke(cli, ["runs", "--limit", "0", *uri]).output
+    assert f"{CELLS + 1} runs; details" in out
+    out = CliRunner().invoke(cli, ["runs", "--limit", str(CELLS + 1), *uri]).output
+    assert f"{CELLS + 1} runs; details" in out  # exactly all: no note
+
+
 def test_ui_counts_every_run(store):
     from shapebench.store.ui import experiment_links
 
