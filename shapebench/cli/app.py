@@ -200,28 +200,33 @@ def protocol_options(f):
     return f
 
 
-def plugin_options(f):
+def dataset_options(f):
+    """``--data-root`` and ``-D KEY=VALUE``: which copy of the dataset, with which options."""
     f = click.option(
         "--data-root",
         type=click.Path(),
         default=None,
         help="Local copy of the dataset (for datasets you download yourself).",
     )(f)
-    f = click.option(
+    return click.option(
         "-D",
         "dataset_opts",
         multiple=True,
         metavar="KEY=VALUE",
         help="Dataset option, e.g. -D test_per_category=10 (repeatable).",
     )(f)
-    f = click.option(
+
+
+def plugin_options(f):
+    """:func:`dataset_options` and ``-O KEY=VALUE`` (method options)."""
+    f = dataset_options(f)
+    return click.option(
         "-O",
         "method_opts",
         multiple=True,
         metavar="KEY=VALUE",
         help="Method option, e.g. -O sigma=0.02 (repeatable).",
     )(f)
-    return f
 
 
 def _settings(profile, tracking_uri, cache_dir, workspace):

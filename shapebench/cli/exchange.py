@@ -23,24 +23,9 @@ from shapebench.cli.app import (
     _trainer,
     cli,
     context_options,
+    dataset_options,
     store_options,
 )
-
-
-def _data_options(f):
-    f = click.option(
-        "--data-root",
-        type=click.Path(),
-        default=None,
-        help="Local copy of the dataset (for datasets you download yourself).",
-    )(f)
-    return click.option(
-        "-D",
-        "dataset_opts",
-        multiple=True,
-        metavar="KEY=VALUE",
-        help="Dataset option, e.g. -D test_per_category=10 (repeatable).",
-    )(f)
 
 
 @cli.command()
@@ -67,7 +52,7 @@ def _data_options(f):
 )
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
 @context_options
-@_data_options
+@dataset_options
 @store_options
 def export(
     dataset,
@@ -138,7 +123,7 @@ def export(
 )
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bars; only the summary.")
-@_data_options
+@dataset_options
 @store_options
 def import_(
     folder,
