@@ -204,6 +204,7 @@ class Tracker:
     ) -> None:
         """Record the evaluated objects as the run's dataset input (the UI's Dataset column)."""
         from mlflow.entities import Dataset, DatasetInput, InputTag
+        from mlflow.exceptions import MlflowException
 
         dataset = Dataset(
             name=name,
@@ -216,7 +217,7 @@ class Tracker:
         inputs = [DatasetInput(dataset=dataset, tags=tags)]
         try:
             self.client.log_inputs(run_id, datasets=inputs)
-        except Exception as exc:
+        except MlflowException as exc:
             # Two workers logging the same dataset at once: MLflow's store looks it up, finds
             # none, and both insert it; the second insert breaks the table's unique key. The
             # dataset exists now, so the same call links it to this run.
