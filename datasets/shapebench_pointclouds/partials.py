@@ -24,8 +24,8 @@ import numpy as np
 from shapebench.api.dataset import Dataset, ObjectLoadError
 from shapebench.api.errors import DataNotFoundError
 from shapebench.api.types import NOVEL, Category, ObjectData, ObjectRef
+from shapebench.exchange.pcd import read_pcd
 from shapebench.hashing import stable_hash
-from shapebench_pointclouds.pcd import read_pcd
 
 SCAN_SUFFIXES = (".pcd", ".ply", ".xyz", ".txt", ".npy")
 ROOT_CATEGORY = "misc"

@@ -41,8 +41,8 @@ from shapebench.api.types import (
     ObjectRef,
     Supervision,
 )
+from shapebench.exchange.pcd import read_pcd
 from shapebench.hashing import stable_hash, stable_seed
-from shapebench_pointclouds.pcd import read_pcd
 
 OBTAIN_HINT = (
     "pass --data-root DIR holding the PCN dataset as PoinTr's DATASET.md lays it out: "

@@ -117,12 +117,14 @@ class FilesMethod(Method):
     trains = False
     Options = FilesOptions
     check_needs = "completions from a user's export folder (-O root=DIR); tests/exchange runs it"
-    #: The manifest's format, and how meshes become the points every metric reads.
+    #: The manifest's format, the file formats read, the digests of the folder, and how meshes
+    #: become the points every metric reads.
     code_modules: ClassVar[tuple[str, ...]] = (
         "shapebench.exchange.manifest",
+        "shapebench.exchange.pcd",
         "shapebench.geometry.meshing",
         "shapebench.geometry.sampling",
-        "shapebench_pointclouds.pcd",
+        "shapebench.hashing",
     )
 
     def __init__(self, options: FilesOptions | None = None) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from shapebench.api.errors import describe
 from shapebench.api.types import Completion
+from shapebench.exchange.pcd import read_pcd
 
 
 class CompletionFileError(ValueError):
@@ -37,8 +38,6 @@ def read_completion(path: Path, n_points: int, seed: int, shown: str = "") -> Co
         if suffix == ".xyz":
             return Completion(points=_cloud(np.loadtxt(path, ndmin=2, comments="#"), shown))
         if suffix == ".pcd":
-            from shapebench_pointclouds.pcd import read_pcd
-
             return Completion(points=_cloud(read_pcd(path), shown))
         loaded = _trimesh_load(path)
     except CompletionFileError:

@@ -14,7 +14,7 @@ per worker (``OMP_NUM_THREADS``), so N workers do not oversubscribe the machine;
 Nothing here is a scheduler: killing a worker loses at most its cell in progress (its lock is
 released with it), and rerunning the sweep computes what is missing. The workers die with the
 sweep that started them, even when it is killed with ``kill -9``: the kernel sends each one
-SIGTERM (:func:`shapebench.train.training.die_with_parent`), which stops it like Ctrl-C, its
+SIGTERM (:func:`shapebench.train.lifecycle.die_with_parent`), which stops it like Ctrl-C, its
 training child included.
 """
 
@@ -92,7 +92,7 @@ def run_local(
     """Run ``jobs`` workers of the sweep whose command line is ``argv``, with ``threads_each``
     torch threads each (None: :func:`threads_per_worker`); the number of workers that failed.
     Ctrl-C stops them (each saves its training checkpoint, as on Ctrl-C)."""
-    from shapebench.train.training import die_with_parent
+    from shapebench.train.lifecycle import die_with_parent
 
     log_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")

@@ -12,21 +12,17 @@ One training per key at a time: the training process holds a lock (:mod:`shapebe
 beside the key's folder; a second process for the same key waits for it, then finds
 ``done.json`` and trains nothing. A child training dies with the process that started it, so a
 killed ``run`` or ``sweep`` leaves no orphan: on Linux the kernel sends it SIGTERM when its parent
-dies, from its first instruction on (:func:`die_with_parent`); elsewhere, and for a parent that
-died before the child was armed, a watchdog thread (:func:`watch_parent`) does.
+dies, from its first instruction on; elsewhere, and for a parent that died before the child was
+armed, a watchdog thread does (:mod:`shapebench.train.lifecycle`).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import threading
-import time
 import warnings
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -38,15 +34,12 @@ from shapebench.config import Settings
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.store.records import CHECKPOINT_KEY_TAG, TRAINING_DEVICE_TAG, training_tags
 from shapebench.store.tracking import Tracker, flatten, training_experiment_name
+from shapebench.train.lifecycle import PARENT_ENV, die_with_parent, wait_child, watch_parent
 from shapebench.train.ticket import TrainingTicket, apply_trainer, checkpoint_key, step_budget
 
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
-#: The pid of the process that started this training and waits for it (see watch_parent).
-PARENT_ENV = "SHAPEBENCH_PARENT_PID"
 #: Suffixes of PyTorch checkpoints, which read_done checks (checksums, key) before reuse.
 TORCH_CHECKPOINTS = (".ckpt", ".pt", ".pth")
-#: How long a child training gets to stop cleanly after its parent was interrupted.
-CHILD_GRACE_SECONDS = 30
 
 
 def trainer_options(settings: Settings, seed: int, **given: Any) -> TrainerOptions:
@@ -141,86 +134,6 @@ def read_done(workdir: Path) -> dict[str, Any] | None:
 def lock_path(workdir: Path) -> Path:
     """The lock beside a checkpoint key's folder, held while that key trains."""
     return workdir.with_name(workdir.name + ".lock")
-
-
-#: prctl(2) option that has the kernel signal a process when its parent dies.
-PR_SET_PDEATHSIG = 1
-
-
-def die_with_parent() -> Callable[[], None] | None:
-    """A ``preexec_fn`` for :class:`subprocess.Popen` that has Linux send the child SIGTERM
-    (handled like Ctrl-C: a training saves and stops, a sweep worker stops its own training)
-    when this process dies, even by ``kill -9``; None where prctl(2) is not available.
-
-    Armed between fork and exec, it covers the child's whole life: a Python-level watchdog only
-    starts once the child has imported torch and prepared its data (seconds to minutes), and a
-    parent killed before that left the child training on (issue 59). The signal follows the
-    death of the forking *thread*, which waits for the child, so it fires when this process
-    dies. The ctypes function is looked up here, in the parent: the child only calls it.
-    """
-    if not sys.platform.startswith("linux"):
-        return None
-    import ctypes
-
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return None
-    prctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
-    prctl.restype = ctypes.c_int
-    parent = os.getpid()
-
-    def arm() -> None:
-        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-        if os.getppid() != parent:  # the parent died between fork and prctl
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    return arm
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process reuses the pid
-        return True
-    return True
-
-
-def watch_parent() -> None:
-    """Stop this training (SIGTERM, handled like Ctrl-C) when the process that started it dies;
-    called by the lead process of a training (not by the ranks Lightning launches, which
-    Lightning stops with rank 0).
-
-    The parent names itself in ``SHAPEBENCH_PARENT_PID``; a thread polls ``os.getppid()``,
-    which changes when the parent dies (the child is re-parented), even after ``kill -9``. A
-    parent already gone when this is called (it was killed while this process imported or
-    prepared data) stops the training at once: that case used to skip the watchdog, and left an
-    orphan training for good (issue 59). A process that inherited the variable from a
-    grandparent still alive is not its child, and is not watched. On Linux
-    :func:`die_with_parent` normally stops the child first; this is the fallback.
-    """
-    expected = os.environ.get(PARENT_ENV, "")
-    if not expected.isdigit():
-        return
-    parent = int(expected)
-    if os.getppid() != parent:
-        if not _alive(parent):
-            print(
-                f"the process that started this training (pid {parent}) is gone: stopping",
-                file=sys.stderr,
-                flush=True,
-            )
-            os.kill(os.getpid(), signal.SIGTERM)
-        return
-
-    def poll() -> None:
-        while os.getppid() == parent:
-            time.sleep(0.5)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    threading.Thread(target=poll, name="shapebench-parent-watchdog", daemon=True).start()
 
 
 def train_here(ticket: TrainingTicket, settings: Settings, quiet: bool = False) -> dict[str, Any]:
@@ -500,7 +413,7 @@ def ensure_checkpoint(
     # key). PYTHONSAFEPATH (Python >= 3.11) keeps the child's imports those of this process.
     env["PYTHONSAFEPATH"] = "1"
     env[PARENT_ENV] = str(os.getpid())
-    returncode = _wait_child(subprocess.Popen(cmd, env=env, preexec_fn=die_with_parent()))
+    returncode = wait_child(subprocess.Popen(cmd, env=env, preexec_fn=die_with_parent()))
     record = read_done(workdir)
     if returncode == 0 and record is None:
         raise ShapebenchError(
@@ -516,18 +429,3 @@ def ensure_checkpoint(
             f"run it alone to see the details: {' '.join(cmd[2:])}",
         )
     return record
-
-
-def _wait_child(proc: subprocess.Popen) -> int:
-    """Wait for a child training; when this process is interrupted, give the child time to stop
-    cleanly (it got the same Ctrl-C, or gets SIGTERM here) before killing it."""
-    try:
-        return proc.wait()
-    except BaseException:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=CHILD_GRACE_SECONDS)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-        raise

@@ -243,7 +243,8 @@ def test_a_board_marks_rows_below_the_floor_and_writes_tails_and_categories(tiny
 
 @pytest.mark.slow  # builds an MLflow store and the page
 def test_the_report_says_which_rows_are_not_better_than_the_floor(tiny_store):
-    from shapebench.boards.html_report import Section, floor_sentences, render_html
+    from shapebench.boards.html_report import Section, render_html
+    from shapebench.boards.html_tables import floor_sentences
     from shapebench.boards.leaderboard import BoardQuery, build_board
 
     tracker, _ = tiny_store

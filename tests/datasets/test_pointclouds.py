@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from shapebench_pointclouds.pcd import read_pcd, write_pcd
 from shapebench_pointclouds.shapenet55 import ShapeNet55Dataset, ShapeNet55Options
 
 from shapebench.api.dataset import ObjectLoadError
 from shapebench.api.errors import ConfigError
 from shapebench.api.types import NOVEL, TRAIN, TRAINED, VALIDATION, Supervision
+from shapebench.exchange.pcd import read_pcd, write_pcd
 
 # -- PCD ------------------------------------------------------------------------------------------
 

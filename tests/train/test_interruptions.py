@@ -288,12 +288,12 @@ def test_the_fallback_watchdog_stops_a_training_whose_parent_is_already_gone(tmp
     import subprocess
     import sys
 
-    from shapebench.train.training import PARENT_ENV
+    from shapebench.train.lifecycle import PARENT_ENV
 
     gone = subprocess.Popen(["true"])
     gone.wait()  # a pid no process has now, as a dead parent's
     code = (
-        "import time; from shapebench.train.training import watch_parent; watch_parent(); "
+        "import time; from shapebench.train.lifecycle import watch_parent; watch_parent(); "
         "time.sleep(30); print('still running')"
     )
     env = {**os.environ, PARENT_ENV: str(gone.pid)}
@@ -305,7 +305,7 @@ def test_the_fallback_watchdog_stops_a_training_whose_parent_is_already_gone(tmp
     # A parent alive, but not this process's parent (a grandchild inherited the variable, as
     # the ranks Lightning launches do): neither stopped nor watched.
     env = {**os.environ, PARENT_ENV: str(os.getpid())}
-    code = "from shapebench.train.training import watch_parent; watch_parent(); print('kept')"
+    code = "from shapebench.train.lifecycle import watch_parent; watch_parent(); print('kept')"
     shell = f'{sys.executable} -c "{code}"; true'  # `; true`: sh forks, no exec
     child = subprocess.run(["sh", "-c", shell], env=env, capture_output=True, text=True, timeout=60)
     assert child.returncode == 0 and "kept" in child.stdout, child.stderr

@@ -1,5 +1,7 @@
 """Reading and writing PCD files (the Point Cloud Library's format; PCN ships its partial and
-complete clouds in it).
+complete clouds in it, and completions made elsewhere come back in it). Here, in the core, because
+both a dataset (``shapebench_pointclouds``) and the ``files`` method read it: the method's key
+covers this file alone, not a dataset package.
 
 A PCD file is a text header (``VERSION``, ``FIELDS``, ``SIZE``, ``TYPE``, ``COUNT``, ``WIDTH``,
 ``HEIGHT``, ``VIEWPOINT``, ``POINTS``, ``DATA``) followed by the points, ``DATA ascii`` (one point
