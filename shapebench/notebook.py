@@ -79,7 +79,8 @@ def evaluate(
     Each argument is the command's option of the same meaning: ``split`` ``--split`` (default:
     the dataset's evaluation splits), ``options`` ``-O`` (the method's options, e.g.
     ``{"sigma": 0.05}``), ``dataset_options`` ``-D``, ``metrics`` ``--metric`` (default: every
-    installed metric), ``frame`` ``--frame``, ``context_normals`` ``--context-normals``,
+    installed metric computed by default, :attr:`Metric.by_default`; the others when named),
+    ``frame`` ``--frame``, ``context_normals`` ``--context-normals``,
     ``protocol``, ``crop_fraction``, ``context_noise`` ``--protocol``, ``--crop-fraction``,
     ``--context-noise``,
     ``checkpoint`` ``--checkpoint``, ``label`` ``--label``, ``trainer`` the trainer options
