@@ -175,8 +175,8 @@ def context_options(f):
         help="sparse: the paper's points on the visible surface [default]; crop: ShapeNet-55's "
         "partial shapes (the complete cloud less the part nearest a viewpoint, farthest-point "
         "sampled; the field uses --contexts 2048); depth: a simulated single-view scan (the "
-        "complete cloud's points one camera sees, farthest-point sampled). leaderboard and "
-        "report: the tables of this protocol only [default: a table per protocol with runs].",
+        "complete cloud's points one camera sees, farthest-point sampled). leaderboard: the "
+        "tables of this protocol only [default: a table per protocol with runs].",
     )(f)
     return f
 
