@@ -137,7 +137,7 @@ def run(
     Examples:
       shapebench run --method gauss --dataset synthetic
       shapebench run -m gauss -d synthetic --contexts 50,100 -O sigma=0.02 --quiet
-      shapebench run -m gauss -d synthetic -D test_per_category=10   # a larger benchmark
+      shapebench run -m gauss -d synthetic -D test_per_category=20   # a larger benchmark
       shapebench run -m gauss -d synthetic --frame unit-diameter   # the paper's scale
       shapebench run -m gauss -d synthetic --protocol crop --crop-fraction 0.5 --contexts 2048
       shapebench run -m gauss -d synthetic --context-noise 0.005   # noisy sparse contexts
