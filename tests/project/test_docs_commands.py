@@ -25,6 +25,7 @@ renamed flag to show that it fails.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import difflib
 import fnmatch
@@ -427,17 +428,45 @@ def _repo_paths(words: list[str]) -> Iterator[str]:
                 yield piece
 
 
+@cache
+def _site_pages() -> dict[Path, Path]:
+    """The documentation site's pages that live outside docs/ (``docs/results.md`` is
+    leaderboards/README.md): the site's hook (mkdocs.yml) names them in ``PAGES``."""
+    hook = ROOT / "docs" / "reference" / "_hooks.py"
+    found = (
+        re.search(r"^PAGES\s*=\s*(\{[^}]*\})", hook.read_text(), re.M) if hook.exists() else None
+    )
+    pages = ast.literal_eval(found.group(1)) if found else {}
+    return {ROOT / "docs" / page: ROOT / source for page, source in pages.items()}
+
+
+def _link_exists(target: Path) -> bool:
+    return target.exists() or target.resolve() in {p.resolve() for p in _site_pages()}
+
+
 def check_markdown(text: str, file: str, base: Path | None = None) -> list[Finding]:
     """Every problem of one markdown document (``file`` names it in the findings; ``base`` is
     its folder, for relative links)."""
     base = base if base is not None else (ROOT / file).parent
     findings: list[Finding] = []
+    variables: dict[str, str] = {}  # R=shapebench/reference_checkpoints, then $R/msc/...
     for line, command in shell_commands(text):
         cwd_moved = False
         for words in _segments(_tokens(command), split_on_bar=True):
             if words[:1] == ["cd"]:
                 cwd_moved = True  # paths after "cd x &&" are relative to x
                 continue
+            if len(words) == 1 and re.fullmatch(r"[A-Za-z_]\w*=\S+", words[0]):
+                name, _, value = words[0].partition("=")
+                variables[name] = value
+            words = [
+                re.sub(
+                    r"\$\{?([A-Za-z_]\w*)\}?",
+                    lambda m: variables.get(m.group(1), m.group(0)),
+                    w,
+                )
+                for w in words
+            ]
             args = _shapebench_args(words)
             if args is not None:
                 findings += check_command(args, file, line, command)
@@ -459,7 +488,7 @@ def check_markdown(text: str, file: str, base: Path | None = None) -> list[Findi
         rel = target.split("#", 1)[0]
         if not rel:
             continue
-        if not (base / rel).exists():
+        if not _link_exists(base / rel):
             findings.append(Finding(file, line, target, f"the link target {rel} does not exist"))
     return findings
 
@@ -489,6 +518,8 @@ def test_the_checker_reports_a_renamed_flag_and_the_closest_valid_one(tmp_path):
         "shapebench run --method gauss --dataset synthetic\n"
         "shapebench run --methd gauss -d synthetic -O sigmaa=0.02 -D test_per_categry=2\n"
         "shapebench leaderbord -d synthetic\n"
+        "R=shapebench/reference_checkpoints\n"
+        "python benchmarks/thin_parts.py field --checkpoint $R/msc/0123456789abcdef/model.ckpt\n"
         "```\n\n"
         "Then `shapebench report -d synthetic --refrence gauss`, see [the guide](missing.md) and\n"
         "`configs/sweeps/nonexistent.yaml`.\n"
@@ -503,10 +534,15 @@ def test_the_checker_reports_a_renamed_flag_and_the_closest_valid_one(tmp_path):
         "-D test_per_categry: not an option of dataset synthetic (did you mean test_per_category?)",
     ) in problems
     assert (6, "unknown sub-command 'leaderbord' (did you mean leaderboard?)") in problems
-    assert (9, "'report' has no option --refrence (did you mean --reference?)") in problems
-    assert (9, "the link target missing.md does not exist") in problems
-    assert any(f.line == 10 and "configs/sweeps/nonexistent.yaml" in f.problem for f in findings)
-    assert len(findings) == 7, problems
+    assert any(
+        f.line == 8
+        and "no such path shapebench/reference_checkpoints/msc/0123456789abcdef" in f.problem
+        for f in findings
+    ), problems
+    assert (11, "'report' has no option --refrence (did you mean --reference?)") in problems
+    assert (11, "the link target missing.md does not exist") in problems
+    assert any(f.line == 12 and "configs/sweeps/nonexistent.yaml" in f.problem for f in findings)
+    assert len(findings) == 8, problems
     assert "guide.md:5:" in str(findings[0]) and "--methd" in str(findings[0])
 
 
