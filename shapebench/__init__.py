@@ -12,7 +12,8 @@ and, for notebooks, runs and their results as pandas DataFrames (docs/python.md)
 :data:`hookimpl` marks the hook implementations declared in :mod:`shapebench.api.hookspecs`; the
 interfaces live in :mod:`shapebench.api.method`, :mod:`shapebench.api.dataset` and
 :mod:`shapebench.api.metric`, the data passed between them in :mod:`shapebench.api.types`.
-``docs/api.md`` is their reference (``python -m shapebench.cli.apidoc`` writes it).
+Their reference is the documentation site's API section (``docs/reference/api/``, rendered from
+these docstrings by ``mkdocs build``).
 
 Only :data:`hookimpl` is imported eagerly: the other names are loaded on first access (PEP 562),
 so that ``import shapebench`` (and ``shapebench --help``) imports neither numpy nor torch.

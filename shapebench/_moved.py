@@ -66,7 +66,6 @@ MOVED: dict[str, str] = {
     "shapebench.launchers": "shapebench.sweeps.launchers",
     "shapebench.sweep_cli": "shapebench.sweeps.submit",
     "shapebench.report": "shapebench.cli.printing",
-    "shapebench.apidoc": "shapebench.cli.apidoc",
     "shapebench.implicit.module_base": "shapebench.train.lightning_module",
 }
 

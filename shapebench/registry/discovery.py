@@ -95,8 +95,8 @@ class Registration:
         except ValueError as exc:
             self.error = self._failure(
                 f"is disabled: {exc}",
-                f"fix the metric's card() in {self.plugin.distribution} (docs/api.md lists the "
-                "allowed values)",
+                f"fix the metric's card() in {self.plugin.distribution} (the MetricCard "
+                "reference, docs/reference/api/metric.md, lists the allowed values)",
             )
             raise self.error from exc
 

@@ -1,6 +1,7 @@
-"""The plugin API as a new plugin author meets it (issue 12): top-level imports, reference docs
-that cannot drift from the code, metric cards for any metric, and bad cards that disable one
-metric with a warning instead of crashing every run."""
+"""The plugin API as a new plugin author meets it (issue 12): top-level imports, the guide's
+examples as they are, metric cards for any metric, and bad cards that disable one metric with a
+warning instead of crashing every run. The API reference's own checks are
+tests/project/test_api_docs.py."""
 
 from __future__ import annotations
 
@@ -20,7 +21,6 @@ import shapebench
 from shapebench.api.errors import ShapebenchError
 from shapebench.api.metric import UNIT_SPHERE_FRAME, MetricCard, check_metric
 from shapebench.api.types import Completion, Context, ObjectData, ObjectRef
-from shapebench.cli import apidoc
 from shapebench.metrics.chamfer import ChamferL1Asym, ChamferL2
 from shapebench.metrics.fscore import FScore
 from shapebench.registry.discovery import PluginWarning, discover
@@ -68,38 +68,7 @@ def test_all_lists_exactly_the_exports_and_each_resolves():
         shapebench.Nope  # noqa: B018
 
 
-# -- reference docs ----------------------------------------------------------------------------
-
-
-def test_api_reference_is_up_to_date():
-    committed = (ROOT / "docs" / "api.md").read_text()
-    assert apidoc.render() == committed, (
-        "docs/api.md is out of date: run python -m shapebench.cli.apidoc"
-    )
-
-
-def test_api_reference_names_every_field_and_allowed_value():
-    text = (ROOT / "docs" / "api.md").read_text()
-    for cls in (MetricCard, Context, Completion, ObjectData):
-        for field in cls.__dataclass_fields__:
-            assert f"| `{field}` |" in text, (cls.__name__, field)
-    for value in ("'max'", "'fraction'", "'harmonic-mean'", "'gt->pred'"):
-        assert f"| `{value}` |" in text
-    for hook in (
-        "shapebench_register_methods",
-        "shapebench_register_datasets",
-        "shapebench_register_metrics",
-    ):
-        assert f"### `{hook}(register: Register) -> None`" in text
-
-
-def test_apidoc_check_fails_on_a_stale_file(tmp_path, capsys):
-    out = tmp_path / "api.md"
-    out.write_text("stale\n")
-    assert apidoc.main(["--check", "--out", str(out)]) == 1
-    assert "out of date" in capsys.readouterr().err
-    assert apidoc.main(["--out", str(out)]) == 0
-    assert apidoc.main(["--check", "--out", str(out)]) == 0
+# -- the guide's examples ---------------------------------------------------------------------
 
 
 def test_plugins_md_shows_the_example_files_as_they_are():
