@@ -19,6 +19,7 @@ time: setup.py). A file found earlier wins, one file at a time.
 
 from __future__ import annotations
 
+import difflib
 import os
 from dataclasses import dataclass
 from importlib import resources
@@ -56,6 +57,38 @@ def config_dirs() -> list[Path]:
             seen.add(d.resolve())
             out.append(d)
     return out
+
+
+def sweep_names() -> list[str]:
+    """The sweeps that run by name: every ``sweeps/NAME.yaml`` of :func:`config_dirs`."""
+    return sorted({f.stem for d in config_dirs() for f in (d / "sweeps").glob("*.yaml")})
+
+
+def find_sweep(given: str | Path) -> Path:
+    """The sweep file ``given`` names: a path to a file, or the name of a sweep in
+    :func:`config_dirs` (``default`` is ``configs/sweeps/default.yaml``, the user's own first,
+    then the built-in one), so that ``shapebench sweep default`` runs from any folder."""
+    path = Path(given)
+    if path.is_file():
+        return path
+    name = str(given)
+    if not path.suffix and len(path.parts) == 1:
+        for d in config_dirs():
+            if (d / "sweeps" / f"{name}.yaml").is_file():
+                return d / "sweeps" / f"{name}.yaml"
+    names = sweep_names()
+    hint = (
+        f"the built-in sweeps: {', '.join(names) or 'none'}; 'shapebench init' writes an "
+        "editable copy of the default one into ./configs/sweeps/"
+    )
+    if path.suffix or len(path.parts) > 1:
+        raise ConfigError(f"sweep file not found: {path}", hint)
+    close = difflib.get_close_matches(name, names, n=1)
+    raise ConfigError(
+        f"no sweep file or built-in sweep named {name!r}"
+        + (f" (did you mean {close[0]!r}?)" if close else ""),
+        hint,
+    )
 
 
 #: What ``shapebench init`` copies: every profile and the example sweep, relative to a config dir.
@@ -172,6 +205,11 @@ class Settings:
     cache_dir: Path
     profile_name: str
     profile: dict[str, Any]
+
+    @property
+    def workspace(self) -> Path:
+        """The workspace folder: the embedded store, artifacts, checkpoints, logs, tables."""
+        return self.artifact_root.parent
 
     @property
     def is_remote(self) -> bool:

@@ -4,8 +4,9 @@ Per split (one leaderboard each, :func:`shapebench.boards.leaderboard.build_boar
 each context size and which rows are statistically tied with the winner, the raw and normalised
 tables (sortable: click a header; their HTML is :mod:`shapebench.boards.html_tables`), the cost
 of each row, the metric card, the figures of :mod:`shapebench.boards.figures` (inline SVG), the
-qualitative grids of :mod:`shapebench.evaluation.pictures` (rows = methods, columns = context sizes, drawn from the pictures the cells logged) and, for
-methods that return posterior samples, the completions coloured by their per-point spread; then
+qualitative grids of :mod:`shapebench.evaluation.pictures` (rows = methods, columns = context
+sizes, drawn from the pictures the cells logged) and, for methods that return posterior
+samples, the completions coloured by their per-point spread; then
 where the numbers come from (versions, git commits, dataset fingerprints).
 
 The page needs nothing but a browser: images are inline (SVG, PNG data URIs), the sorting is a

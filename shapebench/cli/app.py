@@ -21,7 +21,32 @@ DEFAULT_CONTEXTS = "50,100,300,1000"
 
 
 class Group(click.Group):
-    """Turns :class:`ShapebenchError` into one clear message instead of a traceback."""
+    """The ``shapebench`` group: global options in either place, and one-line errors.
+
+    ``--debug`` and the :data:`STORE_OPTIONS` mean the same before and after the sub-command
+    (``shapebench --workspace X runs`` is ``shapebench runs --workspace X``): every sub-command
+    takes ``--debug``, and a store option given before it becomes that command's default (one
+    given after it wins). A store option the command does not use is refused in one line.
+    """
+
+    def add_command(self, cmd: click.Command, name: str | None = None) -> None:
+        cmd.params.append(_debug_option())
+        super().add_command(cmd, name)
+
+    def resolve_command(self, ctx: click.Context, args: list[str]) -> Any:
+        name, cmd, rest = super().resolve_command(ctx, args)
+        given = {k: v for k, v in (ctx.meta.get(GLOBALS_KEY) or {}).items() if v is not None}
+        if cmd is not None and given:
+            takes = {p.name for p in cmd.params}
+            unused = [_flag(k) for k in given if k not in takes]
+            if unused:
+                raise click.UsageError(
+                    f"'{name}' does not use {', '.join(unused)}; leave "
+                    f"{'it' if len(unused) == 1 else 'them'} out",
+                    ctx,
+                )
+            ctx.default_map = {**(ctx.default_map or {}), name: given}
+        return name, cmd, rest
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
@@ -69,38 +94,51 @@ def _int_list(value: str, flag: str) -> list[int]:
         ) from None
 
 
-def store_options(f):
-    """Where runs and data go: shared by every command that touches them."""
-    f = click.option(
-        "--workspace",
+# The options every command that touches the store shares. They are also accepted before the
+# sub-command (``shapebench --workspace X runs``): see :class:`Group`.
+STORE_OPTIONS: dict[str, dict[str, Any]] = {
+    "workspace": dict(
         type=click.Path(file_okay=False),
-        default=None,
         help="Folder of the embedded MLflow store and checkpoints "
         "[default: ./shapebench-runs, or $SHAPEBENCH_WORKSPACE].",
-    )(f)
-    f = click.option(
-        "--cache-dir",
+    ),
+    "cache_dir": dict(
         type=click.Path(file_okay=False),
-        default=None,
         help="Where preprocessed data is cached "
         "[default: ~/.cache/shapebench, or $SHAPEBENCH_CACHE_DIR].",
-    )(f)
-    f = click.option(
-        "--tracking-uri",
-        default=None,
+    ),
+    "tracking_uri": dict(
         metavar="URI",
         help="MLflow tracking URI, e.g. http://127.0.0.1:5000 "
         "[default: $MLFLOW_TRACKING_URI, else sqlite in the workspace].",
-    )(f)
-    f = click.option(
-        "--profile",
-        default=None,
+    ),
+    "profile": dict(
         help="Config profile (configs/profiles/NAME.yaml): standard (2,200 training shapes, "
         "10 test objects per category; its weights ship), quick (66 training shapes, 2 test "
         "objects per category: minutes on a CPU) or paper (the paper's scale) "
         f"[default: {DEFAULT_PROFILE}, or $SHAPEBENCH_PROFILE].",
-    )(f)
-    return f
+    ),
+}
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def some_store_options(*names: str):
+    """The :data:`STORE_OPTIONS` ``names`` (a command takes only those it uses)."""
+
+    def decorate(f):
+        for name in reversed(names):
+            f = click.option(_flag(name), name, default=None, **STORE_OPTIONS[name])(f)
+        return f
+
+    return decorate
+
+
+def store_options(f):
+    """Where runs and data go, and the profile: shared by every command that touches them."""
+    return some_store_options("profile", "tracking_uri", "cache_dir", "workspace")(f)
 
 
 def trainer_options(f):
@@ -246,16 +284,45 @@ def _debug(ctx: click.Context, param: click.Parameter, value: bool) -> None:
         os.environ["SHAPEBENCH_DEBUG"] = "1"
 
 
-@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="shapebench")
-@click.option(
-    "--debug",
-    is_flag=True,
-    expose_value=False,
-    is_eager=True,
-    callback=_debug,
-    help="Show full tracebacks: of errors, and of each distinct per-object failure.",
+def _debug_option() -> click.Option:
+    return click.Option(
+        ["--debug"],
+        is_flag=True,
+        expose_value=False,
+        is_eager=True,
+        callback=_debug,
+        help="Show full tracebacks: of errors, and of each distinct per-object failure.",
+    )
+
+
+# Where the group keeps the store options given before the sub-command (Group.resolve_command).
+GLOBALS_KEY = "shapebench.globals"
+
+
+def _remember_global(ctx: click.Context, param: click.Parameter, value: Any) -> None:
+    ctx.meta.setdefault(GLOBALS_KEY, {})[param.name] = value
+
+
+def _global_store_options(f):
+    for name in reversed(list(STORE_OPTIONS)):
+        f = click.option(
+            _flag(name),
+            name,
+            default=None,
+            expose_value=False,
+            callback=_remember_global,
+            **STORE_OPTIONS[name],
+        )(f)
+    return f
+
+
+@click.group(
+    cls=Group,
+    context_settings={"help_option_names": ["-h", "--help"]},
+    params=[_debug_option()],
 )
+@click.version_option(__version__, prog_name="shapebench")
+@_global_store_options
 def cli() -> None:
     """Benchmark few-shot 3D shape completion.
 
@@ -265,10 +332,13 @@ def cli() -> None:
     \b
     Start here:
       shapebench run --method gauss --dataset synthetic   # evaluate one method
-      shapebench sweep configs/sweeps/default.yaml        # methods x datasets x contexts
+      shapebench sweep default                            # methods x datasets x contexts
       shapebench leaderboard --dataset synthetic          # tables like the paper's
       shapebench ui                                       # compare runs in MLflow
       shapebench plugins                                  # what is installed
+
+    --workspace, --profile, --tracking-uri, --cache-dir and --debug may come before or
+    after the command.
     """
 
 
@@ -312,10 +382,13 @@ def _exit_if_all_failed(outcomes) -> None:
 
 
 def _argv_after(command: str) -> list[str]:
-    """This process's arguments after the sub-command ``command`` (global options before it are
-    not passed on)."""
+    """This process's arguments for the sub-command ``command``, with the global options given
+    before it (every one of them is also an option of the sub-command: :class:`Group`)."""
     args = sys.argv[1:]
-    return args[args.index(command) + 1 :] if command in args else args
+    if command not in args:
+        return args
+    at = args.index(command)
+    return args[:at] + args[at + 1 :]
 
 
 def _parse(pairs, flag) -> dict:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -77,11 +78,20 @@ from shapebench.cli.app import (
 )
 @click.option(
     "--launcher",
-    type=click.Choice(["inline", "slurm", "submitit-local"]),
+    type=click.Choice(["inline", "local", "slurm", "submitit-local"]),
     default="inline",
     show_default=True,
-    help="slurm: submit the training and the cells as SLURM jobs (see sweep --help "
-    "and docs/cluster.md); submitit-local: the same jobs on this machine.",
+    help="inline: every cell in this process; local: in -j worker processes; slurm: submit "
+    "the training and the cells as SLURM jobs (see sweep --help and docs/cluster.md); "
+    "submitit-local: the same jobs on this machine.",
+)
+@click.option(
+    "--jobs",
+    "-j",
+    type=int,
+    default=2,
+    show_default=True,
+    help="Worker processes of --launcher local (jobs at once for submitit-local).",
 )
 @click.option(
     "--slurm",
@@ -110,6 +120,7 @@ def run(
     quiet,
     label,
     launcher,
+    jobs,
     slurm_opts,
     wait,
     frame,
@@ -174,16 +185,22 @@ def run(
             raise ShapebenchError("--checkpoint, --force and --retrain need --launcher inline")
         sweep_file = run_as_sweep(req, settings)
         click.echo(f"as a sweep of one method: {sweep_file}")
+        given = {k: v for k, v in trainer.items() if v is not None}
         launch = SweepLaunch(
             spec=load_sweep(sweep_file),
             sweep_file=sweep_file,
             settings=settings,
             launcher=launcher,
-            trainer={k: v for k, v in trainer.items() if v is not None},
+            jobs=jobs,
+            trainer=given,
             overrides=_parse(slurm_opts, "--slurm"),
+            quiet=quiet,
             wait=wait,
         )
-        cluster_sweep(launch)
+        if launcher == "local":
+            _sweep_here(launch, _worker_argv(sweep_file, settings, given, quiet))
+        else:
+            cluster_sweep(launch)
         return
     outcome = evaluate(req, settings, lambda seed: _trainer(settings, seed, **trainer))
     print_summary(outcome, settings)
@@ -191,7 +208,7 @@ def run(
 
 
 @cli.command()
-@click.argument("sweep_file", type=click.Path(dir_okay=False))
+@click.argument("sweep_file", metavar="SWEEP")
 @click.option("--force", is_flag=True, help="Recompute cells that already have a finished run.")
 @click.option(
     "--retrain",
@@ -289,7 +306,11 @@ def sweep(
     workspace,
     **trainer,
 ) -> None:
-    """Run every method x dataset x split x context size x seed of SWEEP_FILE.
+    """Run every method x dataset x split x context size x seed of SWEEP.
+
+    SWEEP is a sweep file, or the name of a built-in one (default, standard, paper-methods,
+    crop-25, ...: the files of configs/sweeps/; a ./configs/sweeps/NAME.yaml of your own comes
+    first), so that `shapebench sweep default` runs from any folder.
 
     Finished cells (same resolved config hash) are skipped: rerun the same command after
     Ctrl-C or a crash and only the missing cells run. --force recomputes everything.
@@ -324,21 +345,23 @@ def sweep(
 
     \b
     Examples:
-      shapebench sweep configs/sweeps/default.yaml
-      shapebench sweep configs/sweeps/default.yaml --launcher local -j 2
-      shapebench sweep configs/sweeps/default.yaml --threads 1     # beside a training
-      shapebench sweep configs/sweeps/default.yaml -D test_per_category=4   # fewer objects
-      shapebench sweep configs/sweeps/default.yaml --seeds 0                # one seed of three
-      shapebench sweep configs/sweeps/default.yaml --launcher slurm --slurm partition=gpu
-      shapebench sweep configs/sweeps/default.yaml --status
-      shapebench sweep configs/sweeps/data-scaling.yaml -m msc,msc-noopt   # MSC's part
+      shapebench sweep default
+      shapebench sweep default --launcher local -j 2
+      shapebench sweep default --threads 1                      # beside a training
+      shapebench sweep default -D test_per_category=4           # fewer objects
+      shapebench sweep default --seeds 0                        # one seed of three
+      shapebench sweep default --launcher slurm --slurm partition=gpu
+      shapebench sweep default --status
+      shapebench sweep data-scaling -m msc,msc-noopt            # MSC's part
+      shapebench sweep my-sweep.yaml                            # a file of your own
     """
-    from shapebench.cli.printing import print_summary
+    from shapebench.config import find_sweep
     from shapebench.sweeps.spec import load_sweep, narrow_sweep
 
     dataset_options = _parse(dataset_opts, "-D")
     seeds = tuple(_int_list(seed_list, "--seeds"))
-    spec = narrow_sweep(load_sweep(Path(sweep_file)), methods, seeds, dataset_options)
+    sweep_file = find_sweep(sweep_file)
+    spec = narrow_sweep(load_sweep(sweep_file), methods, seeds, dataset_options)
     settings = _settings(profile or spec.profile, tracking_uri, cache_dir, workspace)
     if frame is not None or context_normals is not None:
         from dataclasses import replace
@@ -350,11 +373,11 @@ def sweep(
                 spec.protocol.context_normals if context_normals is None else context_normals,
             ),
         )
-    from shapebench.sweeps.submit import SweepLaunch, run_inline, show_status, start_sweep
+    from shapebench.sweeps.submit import SweepLaunch, show_status
 
     launch = SweepLaunch(
         spec=spec,
-        sweep_file=Path(sweep_file),
+        sweep_file=sweep_file,
         settings=settings,
         launcher=launcher or spec.launcher.get("name") or "inline",
         jobs=jobs,
@@ -375,7 +398,17 @@ def sweep(
     if status:
         show_status(launch)
         return
-    if not start_sweep(launch, _argv_after("sweep")):
+    _sweep_here(launch, _argv_after("sweep"))
+
+
+def _sweep_here(launch: Any, worker_argv: list[str]) -> None:
+    """Start ``launch`` (local workers run ``sweep`` with ``worker_argv``; cluster jobs are
+    submitted), then compute what is left in this process and print each summary."""
+    from shapebench.cli.printing import print_summary
+    from shapebench.sweeps.spec import SweepProgress, sweep_size
+    from shapebench.sweeps.submit import run_inline, start_sweep
+
+    if not start_sweep(launch, worker_argv):
         return  # submitted as jobs
 
     def report(method: str, dataset: str, exc: ShapebenchError) -> None:
@@ -384,15 +417,34 @@ def sweep(
             click.echo(f"  hint: {exc.hint}", err=True)
         click.echo("  continuing with the rest of the sweep", err=True)
 
-    from shapebench.sweeps.spec import SweepProgress, sweep_size
-
-    progress = SweepProgress(sweep_size(spec, settings))
+    progress = SweepProgress(sweep_size(launch.spec, launch.settings))
     outcomes = []
     for outcome in run_inline(launch, report):
-        print_summary(outcome, settings)
+        print_summary(outcome, launch.settings)
         click.secho(progress.update(outcome), dim=True)
         outcomes.append(outcome)
     _exit_if_all_failed(outcomes)
+
+
+def _worker_argv(
+    sweep_file: Path, settings: Any, trainer: dict[str, Any], quiet: bool
+) -> list[str]:
+    """``run --launcher local``'s workers: ``sweep`` of the one-method sweep file, with this
+    command's store, profile and trainer settings."""
+    argv = [
+        str(sweep_file),
+        "--workspace",
+        str(settings.workspace),
+        "--tracking-uri",
+        settings.tracking_uri,
+        "--cache-dir",
+        str(settings.cache_dir),
+        "--profile",
+        settings.profile_name,
+    ]
+    for name, value in trainer.items():
+        argv += [f"--{name.replace('_', '-')}", str(value)]
+    return argv + (["--quiet"] if quiet else [])
 
 
 @cli.command()

@@ -14,8 +14,11 @@ from shapebench.cli.app import (
     _settings,
     cli,
     context_options,
-    store_options,
+    some_store_options,
 )
+
+# The store's place is all a command that only reads it uses.
+store_location = some_store_options("tracking_uri", "workspace")
 
 
 def _floor_and_tail_options(command):
@@ -50,6 +53,12 @@ def _floors(given: tuple[str, ...]) -> tuple[str, ...] | None:
     if not given:
         return None
     return () if list(given) == ["none"] else tuple(given)
+
+
+def _out(out_dir: str | None, settings) -> Path:
+    """Where tables and reports go: ``--out``, else the workspace's ``leaderboards/`` (so that
+    a checkout's committed tables change only when asked: ``--out leaderboards``)."""
+    return Path(out_dir) if out_dir else settings.workspace / "leaderboards"
 
 
 @cli.command()
@@ -90,13 +99,12 @@ def _floors(given: tuple[str, ...]) -> tuple[str, ...] | None:
     "--out",
     "out_dir",
     type=click.Path(file_okay=False),
-    default="leaderboards",
-    show_default=True,
-    help="Where the .md and .csv files are written.",
+    default=None,
+    help="Where the .md and .csv files are written [default: the workspace's leaderboards/].",
 )
 @_floor_and_tail_options
 @context_options
-@store_options
+@store_location
 def leaderboard(
     dataset,
     splits,
@@ -111,15 +119,14 @@ def leaderboard(
     context_protocol,
     crop_fraction,
     context_noise,
-    profile,
     tracking_uri,
-    cache_dir,
     workspace,
 ) -> None:
     """Build raw and normalised Chamfer tables for DATASET from the runs in MLflow.
 
-    Writes leaderboards/<dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3,
-    and <dataset>-<split>-categories.csv (each category's mean and median).
+    Writes <dataset>-<split>.md and .csv, laid out like the paper's Tables 1-3, and
+    <dataset>-<split>-categories.csv (each category's mean and median) into the workspace's
+    leaderboards/ folder, or --out DIR (a checkout's committed tables: --out leaderboards).
     A row is one method variant (options, code, checkpoint, protocol), labelled like
     gauss[sigma=0.05]; per context size the best row is bold and rows statistically tied with
     it (paired Wilcoxon over the same objects, Holm-corrected) are marked, and rows not
@@ -142,7 +149,7 @@ def leaderboard(
     """
     from shapebench.boards.leaderboard import BoardQuery, build_leaderboards
 
-    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    settings = _settings(None, tracking_uri, None, workspace)
     given = context_protocol is not None or crop_fraction or context_noise
     protocol = (
         _protocol(None, None, context_protocol, crop_fraction, context_noise).name
@@ -153,7 +160,7 @@ def leaderboard(
         dataset, reference, metric, frame, data_version, all_variants, _floors(floors), tail
     )
     for path in build_leaderboards(
-        settings, query, splits.split(",") if splits else None, Path(out_dir), protocol
+        settings, query, splits.split(",") if splits else None, _out(out_dir, settings), protocol
     ):
         click.echo(f"wrote {path}")
 
@@ -195,12 +202,11 @@ def leaderboard(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False),
-    default="leaderboards",
-    show_default=True,
-    help="Where the page and its figures are written.",
+    default=None,
+    help="Where the page and its figures are written [default: the workspace's leaderboards/].",
 )
 @_floor_and_tail_options
-@store_options
+@store_location
 def report(
     dataset,
     splits,
@@ -212,9 +218,7 @@ def report(
     out_dir,
     floors,
     tail,
-    profile,
     tracking_uri,
-    cache_dir,
     workspace,
 ) -> None:
     """Write one self-contained HTML page for DATASET from the runs in MLflow.
@@ -226,8 +230,8 @@ def report(
     accuracy against cost, the qualitative grids (rows = methods, columns = context sizes),
     each row's worst object at the largest context size, posterior-spread pictures, and
     provenance.
-    Written as leaderboards/<dataset>-report.html (open it in any browser; it fetches
-    nothing) and logged to MLflow beside the leaderboard.
+    Written as <dataset>-report.html in the workspace's leaderboards/ folder, or --out DIR
+    (open it in any browser; it fetches nothing), and logged to MLflow beside the leaderboard.
 
     \b
     Examples:
@@ -240,12 +244,12 @@ def report(
 
     # Reading back dozens of small artifacts would print one progress bar each.
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
-    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    settings = _settings(None, tracking_uri, None, workspace)
     query = BoardQuery(
         dataset, reference, metric, frame, data_version, all_variants, _floors(floors), tail
     )
     page, seconds = build_report(
-        settings, query, splits.split(",") if splits else None, Path(out_dir)
+        settings, query, splits.split(",") if splits else None, _out(out_dir, settings)
     )
     click.echo(f"wrote {page} in {seconds:.1f} s (open it in a browser)")
 
@@ -264,10 +268,18 @@ def report(
 @click.option("--split", default=None, help="Only runs on this split.")
 @click.option("--context", "-k", type=int, default=None, help="Only cells of this context size.")
 @click.option(
-    "--status",
+    "--state",
+    "status",
     type=click.Choice(["finished", "running", "failed", "killed"], case_sensitive=False),
     default=None,
     help="Only runs in this state.",
+)
+@click.option(
+    "--status",
+    "old_status",
+    type=click.Choice(["finished", "running", "failed", "killed"], case_sensitive=False),
+    default=None,
+    hidden=True,  # the old name; `sweep --status` shows cells, so the filter is --state
 )
 @click.option(
     "--limit",
@@ -276,7 +288,7 @@ def report(
     help="At most this many (the newest); 0: every run. Says so when it leaves runs out.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (one object per run).")
-@store_options
+@store_location
 def runs(
     kind,
     method,
@@ -284,11 +296,10 @@ def runs(
     split,
     context,
     status,
+    old_status,
     limit,
     as_json,
-    profile,
     tracking_uri,
-    cache_dir,
     workspace,
 ) -> None:
     """List the runs in the store: variant, dataset/split, context size, seed, status, the
@@ -298,15 +309,18 @@ def runs(
     Examples:
       shapebench runs                              # every cell
       shapebench runs -d synthetic --split novel -k 100
-      shapebench runs --status failed              # what to look at
+      shapebench runs --state failed               # what to look at
       shapebench runs --kind training              # trainings and how long they took
       shapebench runs -m gauss --json | jq '.[].value'
     """
     from shapebench.store.listing import format_rows, list_runs_counted, rows_json
 
+    if old_status:
+        click.secho("Warning: runs --status is now --state", fg="yellow", err=True)
+        status = status or old_status
     if limit < 0:
         raise ShapebenchError(f"--limit must be 0 (every run) or more, got {limit}")
-    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    settings = _settings(None, tracking_uri, None, workspace)
     rows, more = list_runs_counted(
         settings, kind, method, dataset, split, status, context, limit or None
     )
@@ -328,8 +342,8 @@ def runs(
 @click.argument("run_id", metavar="RUN")
 @click.option("--all", "all_tags", is_flag=True, help="Also every tag and param.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@store_options
-def show(run_id, all_tags, as_json, profile, tracking_uri, cache_dir, workspace) -> None:
+@store_location
+def show(run_id, all_tags, as_json, tracking_uri, workspace) -> None:
     """Show one run: what it evaluated, its metrics, artifacts and links to it (and to its
     training) in the MLflow UI. RUN is a run id or a unique prefix of one.
 
@@ -341,7 +355,7 @@ def show(run_id, all_tags, as_json, profile, tracking_uri, cache_dir, workspace)
     """
     from shapebench.store.listing import details_json, format_details, show_run
 
-    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    settings = _settings(None, tracking_uri, None, workspace)
     details = show_run(settings, run_id)
     if as_json:
         click.echo(details_json(details))
@@ -359,8 +373,8 @@ def show(run_id, all_tags, as_json, profile, tracking_uri, cache_dir, workspace)
 )
 @click.option("--port", default=5000, show_default=True, help="Port to listen on.")
 @click.option("--workers", default=1, show_default=True, help="Server worker processes.")
-@store_options
-def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None:
+@store_location
+def ui(host, port, workers, tracking_uri, workspace) -> None:
     """Start the MLflow UI on the configured store; print links to each experiment.
 
     The links open an experiment's runs table with the primary metric as a column, and its
@@ -375,7 +389,7 @@ def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None
     """
     from shapebench.store.ui import experiment_links, print_links, serve
 
-    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    settings = _settings(None, tracking_uri, None, workspace)
     if settings.is_remote:
         from shapebench.store.tracking import check_reachable, open_client
 
@@ -399,8 +413,8 @@ def ui(host, port, workers, profile, tracking_uri, cache_dir, workspace) -> None
     metavar="URI",
     help="Store to merge into [default: this workspace's store, or --tracking-uri].",
 )
-@store_options
-def merge(stores, into, profile, tracking_uri, cache_dir, workspace) -> None:
+@store_location
+def merge(stores, into, tracking_uri, workspace) -> None:
     """Import the finished cells and trainings of other MLflow stores into one.
 
     For jobs on nodes without a tracking server: each job logs to a workspace of its own, then
@@ -415,7 +429,7 @@ def merge(stores, into, profile, tracking_uri, cache_dir, workspace) -> None:
     """
     from shapebench.store.merge import merge_stores
 
-    settings = _settings(profile, tracking_uri, cache_dir, workspace)
+    settings = _settings(None, tracking_uri, None, workspace)
     target = into or settings.tracking_uri
     from shapebench.store.tracking import check_reachable
 

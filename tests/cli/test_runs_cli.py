@@ -84,8 +84,12 @@ def test_runs_filters_and_json(store):
         "gauss[sigma=0.05] (parent)",
     ]
     assert parents[-1].startswith("2 runs")
-    bad = sb("runs", "--status", "lost")
+    bad = sb("runs", "--state", "lost")
     assert bad.returncode == 2 and "'lost' is not one of" in bad.stderr
+    # The filter's old name still filters, and says its new one.
+    old = sb("runs", "--status", "finished", "--kind", "parent")
+    assert old.returncode == 0 and old.stdout.splitlines()[-1].startswith("2 runs"), old.stdout
+    assert "runs --status is now --state" in old.stderr
 
 
 @pytest.mark.slow

@@ -105,30 +105,23 @@ def test_an_installed_wheel_runs_and_tabulates_from_an_empty_folder(fresh_env, t
     assert configs.endswith("_configs")
 
     cmd = [str(fresh_env / "bin" / "shapebench")]
-    done = subprocess.run(
-        cmd
-        + ["run", "-m", "gauss", "-d", "synthetic", "--contexts", "50", "--split", "trained"]
-        + ["-D", "test_per_category=1", "-q"],
-        cwd=empty,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
-    assert "Traceback" not in done.stderr
-    board = subprocess.run(
-        cmd + ["leaderboard", "-d", "synthetic", "--split", "trained", "--out", "boards"],
-        cwd=empty,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert board.returncode == 0, board.stdout + board.stderr
-    table = (empty / "boards" / "synthetic-trained.md").read_text()
+
+    def shapebench(*args: str) -> subprocess.CompletedProcess:
+        done = subprocess.run(
+            cmd + list(args), cwd=empty, env=env, capture_output=True, text=True, timeout=600
+        )
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert "Traceback" not in done.stderr
+        return done
+
+    # A built-in sweep by name, from a folder with no configs/ (gauss's cells of it only).
+    shapebench("sweep", "default", "-m", "gauss", "--seeds", "0", "-D", "test_per_category=1")
+    shapebench("run", "-m", "gauss", "-d", "synthetic", "--contexts", "50", "--split", "trained",
+               "-D", "test_per_category=1", "-O", "sigma=0.05", "-q")  # fmt: skip
+    shapebench("leaderboard", "-d", "synthetic", "--split", "trained")
+    table = (tmp_path / "ws" / "leaderboards" / "synthetic-trained.md").read_text()
     assert "`gauss`" in table
-    assert sorted(p.name for p in empty.iterdir()) == ["boards"]  # nothing else written here
+    assert list(empty.iterdir()) == []  # tables go to the workspace: nothing written here
 
 
 def test_init_writes_an_editable_copy_and_keeps_edits(tmp_path):

@@ -264,3 +264,27 @@ def test_sigkill_of_a_local_sweep_stops_its_workers_and_their_trainings(shapeben
     finally:
         for pid in processes_mentioning(mine):
             os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_run_with_local_workers_computes_each_cell_once(shapebench):
+    """``run --launcher local -j 2``: ``sweep``'s workers, on the one-method sweep ``run``
+    writes; each cell once, with ``run``'s own dataset options and protocol."""
+    sb = shapebench
+    res = sb(
+        "run", "-m", "gauss", "-d", "synthetic", "--split", "trained", "--contexts", "50,100",
+        "-D", "test_per_category=1", "--context-noise", "0.005", "--launcher", "local", "-j", "2",
+        "-q",
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "2 workers" in res.stdout and "as a sweep of one method" in res.stdout
+    runs = sb.cell_runs("synthetic-trained")
+    assert sorted(int(r.data.tags["context_size"]) for r in runs) == [50, 100]
+    assert {r.data.tags["protocol.context"] for r in runs} == {"sparse+noise-0.005"}
+    # The same command inline finds both cells finished.
+    again = sb(
+        "run", "-m", "gauss", "-d", "synthetic", "--split", "trained", "--contexts", "50,100",
+        "-D", "test_per_category=1", "--context-noise", "0.005", "-q",
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert len(sb.cell_runs("synthetic-trained")) == 2
