@@ -188,7 +188,7 @@ def trainer_options(f):
 
 
 def context_options(f):
-    """Where context points come from (see shapebench.api.protocol): run, leaderboard, report."""
+    """Where context points come from (see shapebench.api.protocol): run and leaderboard."""
     f = click.option(
         "--context-noise",
         type=float,
@@ -251,7 +251,7 @@ def dataset_options(f):
         "dataset_opts",
         multiple=True,
         metavar="KEY=VALUE",
-        help="Dataset option, e.g. -D test_per_category=10 (repeatable).",
+        help="Dataset option, e.g. -D test_per_category=4 (repeatable).",
     )(f)
 
 

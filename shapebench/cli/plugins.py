@@ -68,7 +68,7 @@ def datasets(profile) -> None:
     Examples:
       shapebench datasets
       shapebench datasets --profile paper
-      shapebench run -m gauss -d synthetic -D test_per_category=10   # override one
+      shapebench run -m gauss -d synthetic -D test_per_category=20   # override one
     """
     from shapebench.cli.printing import describe_kind
 
