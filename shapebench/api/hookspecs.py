@@ -66,10 +66,10 @@ def shapebench_register_metrics(register: Register) -> None:
     """Register metrics: subclasses of :class:`shapebench.api.metric.Metric`.
 
     Every installed metric whose ``by_default`` is true is computed by every run; the others
-    (e.g. ``emd``) when a run asks for them by name (``--metric``). The class is checked when it is first
-    used: a class that cannot be imported or built, or whose ``card()`` raises or returns an
-    invalid :class:`~shapebench.api.metric.MetricCard`, disables that metric with a warning naming
-    the plugin, and the other metrics still run.
+    (e.g. ``emd``) when a run asks for them by name (``--metric``). The class is checked when it
+    is first used: a class that cannot be imported or built, or whose ``card()`` raises or
+    returns an invalid :class:`~shapebench.api.metric.MetricCard`, disables that metric with a
+    warning naming the plugin, and the other metrics still run.
 
     Args:
         register: call ``register(name, target)`` once per metric; ``name`` is what
