@@ -450,7 +450,15 @@ def _worker_argv(
 @cli.command()
 @click.option("--method", "-m", required=True, help="Method name.")
 @click.option("--dataset", "-d", required=True, help="Dataset to train on (its train split).")
-@click.option("--seed", default=0, show_default=True, help="Training seed.")
+@click.option(
+    "--seeds",
+    "--seed",
+    "seeds",
+    default="0",
+    show_default=True,
+    help="Comma-separated training seeds, trained one after another (as run's and sweep's "
+    "--seeds; --seed is the same option).",
+)
 @click.option(
     "--retrain",
     is_flag=True,
@@ -464,7 +472,7 @@ def _worker_argv(
 def train(
     method,
     dataset,
-    seed,
+    seeds,
     retrain,
     quiet,
     method_opts,
@@ -487,6 +495,7 @@ def train(
     \b
     Examples:
       shapebench train -m msc -d synthetic
+      shapebench train -m msc -d synthetic --seeds 1,2     # two more seeds, in turn
       shapebench train -m pcn -d synthetic --max-epochs 5 --quiet
       shapebench train -m msc -d shapenet --data-root ~/data/ShapeNetCore.v2 \\
           --accelerator gpu --devices 2 --strategy ddp --profile paper
@@ -502,6 +511,8 @@ def train(
     if not resolved.cls.trains:
         raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
     ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    ticket = training_ticket(resolved, ds, _trainer(settings, seed, **trainer), settings, retrain)
-    record = train_here(ticket, settings, quiet)
-    click.echo(f"checkpoint: {record['path']}")
+    for seed in _int_list(seeds, "--seeds"):
+        trainer_seed = _trainer(settings, seed, **trainer)
+        ticket = training_ticket(resolved, ds, trainer_seed, settings, retrain)
+        record = train_here(ticket, settings, quiet)
+        click.echo(f"checkpoint: {record['path']}")

@@ -219,6 +219,9 @@ def _train_locked(ticket: TrainingTicket, settings: Settings, quiet: bool, run_i
             interrupted = isinstance(exc, (TrainingInterrupted, KeyboardInterrupt))
             tracker.end_after(run_id, exc, "KILLED" if interrupted else "FAILED")
         raise
+    finally:
+        if tracker is not None:  # the run id was this training's: the next one (train
+            os.environ.pop(RUN_ID_ENV, None)  # --seeds 0,1) starts a run of its own
     record = {"key": key, "path": str(path), "run_id": run_id}  # weights: local (no "weights")
     if tracker is not None:
         _log_fit_summary(tracker, run_id, workdir)

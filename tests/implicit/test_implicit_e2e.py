@@ -244,3 +244,16 @@ def test_occnet_trains_on_sdf_derived_queries_and_meshes_at_the_threshold(shapeb
     # A tiny network may still miss tau for an object: then it fails with the reason.
     for row in table.itertuples():
         assert row.status == "ok" or "level" in row.error or "surface" in row.error.lower()
+
+
+def test_train_takes_seeds_like_run_and_trains_each_in_turn(shapebench):
+    """``train --seeds 0,1``: one training (and checkpoint key) per seed; ``--seed 1`` is the
+    same option, so the second seed is then found done."""
+    args = ["train", "-m", "igr", "-d", "synthetic", *TINY, *SMALL_NET, *SURFACE, "-q"]
+    res = shapebench(*args, "--seeds", "0,1")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.count("checkpoint: ") == 2
+    assert len(list((shapebench.workspace / "checkpoints" / "igr").glob("*/done.json"))) == 2
+    again = shapebench(*args, "--seed", "1")
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert len(_training_runs(shapebench)) == 2  # seed 1 was done: nothing trained again
