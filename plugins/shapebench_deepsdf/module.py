@@ -57,8 +57,8 @@ class DeepSDFModule(OptionsModule):
         o = self.options
         target = torch.zeros(points.shape[:2], device=points.device)
 
-        def loss(z: torch.Tensor) -> torch.Tensor:
-            data = clamped_l1(self.decoder(z, points), target, o.clamp)
+        def loss(z: torch.Tensor) -> torch.Tensor:  # the decoder's one-code-per-object forward
+            data = clamped_l1(self.decoder.forward_shared(z, points), target, o.clamp)
             return data + o.code_reg * (z**2).mean(dim=1)
 
         return loss

@@ -15,7 +15,7 @@ from shapebench_igr.method import IGROptions
 
 
 def surface_losses(
-    decoder: nn.Module,
+    decoder: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     z: torch.Tensor,
     points: torch.Tensor,
     normals: torch.Tensor | None,
@@ -120,8 +120,9 @@ class IGRModule(OptionsModule):
             if seeds is not None:
                 off = per_object_samples(points, o.offsurface, eikonal_samples, seeds, calls)
             calls += 1
+            # One code per object: the decoder's forward_shared (training keeps its forward).
             t = surface_losses(
-                self.decoder, z, points, normals, o.offsurface, eikonal_samples, off=off
+                self.decoder.forward_shared, z, points, normals, o.offsurface, eikonal_samples, off
             )
             total = t["manifold"] + o.eikonal_weight * t["eikonal"] + o.latent_reg * z.abs().mean(1)
             if normals is not None:

@@ -116,15 +116,17 @@ class MSCModule(OptionsModule):
         regulariser that the paper does not use; off by default).
         """
         o = self.options
+        # One code per object: the decoder's forward_shared (training keeps its forward).
+        decoder = self.decoder.forward_shared
 
         def loss(z: torch.Tensor) -> torch.Tensor:
             if eikonal_weight <= 0:
-                f = self.decoder(z, points)
+                f = decoder(z, points)
                 return 0.5 * (f / self.sigma()).pow(2).mean(dim=1)
             off = offsurface_samples(points, o.offsurface)
             x = torch.cat([points, off], dim=1).detach().requires_grad_(True)
             with torch.enable_grad():
-                f = self.decoder(z, x)
+                f = decoder(z, x)
                 g = gradient(f, x)
             n = points.shape[1]
             data = 0.5 * (f[:, :n] / self.sigma()).pow(2).mean(dim=1)

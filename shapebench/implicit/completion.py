@@ -76,13 +76,15 @@ def initial_latents(
 def field_of(
     decoder: nn.Module, z: torch.Tensor, device: torch.device, bf16: bool = False
 ) -> Callable[[np.ndarray], np.ndarray]:
-    """The SDF of one latent code as a numpy function, for the mesh extractor."""
+    """The SDF of one latent code as a numpy function, for the mesh extractor (through the
+    decoder's ``forward_shared`` where it has one: the code's share computed once)."""
+    evaluate = getattr(decoder, "forward_shared", decoder)
 
     @torch.no_grad()
     def field(points: np.ndarray) -> np.ndarray:
         x = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float32)).to(device)[None]
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16):
-            values = decoder(z[None], x)
+            values = evaluate(z[None], x)
         return values.float()[0].cpu().numpy()
 
     return field

@@ -42,6 +42,40 @@ def test_decoders_take_the_latent_first_and_deepsdf_ends_in_tanh():
     assert out.shape == (2, 100) and out.abs().max() < 1.0
 
 
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: IGRDecoder(128, width=128, depth=4),  # MSC's: the code wider than the layers
+        lambda: IGRDecoder(16, width=64, depth=4),  # IGR's: the skip concatenation fits
+        lambda: DeepSDFDecoder(16, width=64, depth=4).eval(),  # weight norm, tanh
+    ],
+)
+def test_the_shared_code_forward_is_the_forward(make):
+    """``forward_shared`` computes the code's share of the first and skip layers once per object:
+    the same values and gradients (to the code and to the points, twice: the Eikonal term) as
+    ``forward`` up to rounding, for the decoders' three layouts (in float64, where rounding is
+    far below the tolerance: the algebra is what is tested)."""
+    torch.manual_seed(0)
+    dec = make().double()
+    z = (torch.randn(3, dec.latent_dim, dtype=torch.float64) * 0.3).requires_grad_(True)
+    x = (torch.rand(3, 200, 3, dtype=torch.float64) * 2 - 1).requires_grad_(True)
+
+    def grads(forward):
+        f = forward(z, x)
+        (gx,) = torch.autograd.grad(f.sum(), x, create_graph=True)
+        loss = f.abs().mean() + ((gx.norm(dim=-1) - 1) ** 2).mean()
+        gz, gx2 = torch.autograd.grad(loss, (z, x))
+        return f, gx, gz, gx2
+
+    for want, got in zip(grads(dec.forward), grads(dec.forward_shared), strict=True):
+        scale = want.abs().max().item()
+        assert scale > 0
+        assert (want - got).abs().max().item() <= 1e-10 * scale
+    # Per-point codes (B, n, d) take forward itself.
+    per_point = z.detach()[:, None, :].expand(-1, 200, -1)
+    assert torch.equal(dec.forward_shared(per_point, x), dec.forward(per_point, x))
+
+
 def test_msc_posterior_variance_shrinks_as_points_are_added_and_ignores_order():
     torch.manual_seed(1)
     encoder = MSCEncoder(latent_dim=32, hidden=64, layers=2)
