@@ -130,12 +130,14 @@ class Runner:
             results += self._run_pending(work, pending, cached)
         return results
 
-    def finished(self, plan: RunPlan, exp_id: str, key: str):
+    def finished(self, plan: RunPlan, exp_id: str, key: str, index: dict[str, Any] | None = None):
         """The finished run of this cell, unless recomputing on purpose or one of the plan's
-        metrics raised in it (it is computed again, for every metric, once that is fixed)."""
+        metrics raised in it (it is computed again, for every metric, once that is fixed).
+        ``index``: the experiment's finished cells by key, read once
+        (:meth:`~shapebench.store.tracking.Tracker.finished_cell_index`), for many lookups."""
         if plan.force:
             return None
-        done = self.tracker.find_cell(exp_id, key)
+        done = index.get(key) if index is not None else self.tracker.find_cell(exp_id, key)
         if done is not None and done.metric_errors & {m.name for m in plan.metrics}:
             return None
         return done

@@ -79,6 +79,13 @@ class FinishedCell:
     record: Any = None
 
 
+def _finished_cell(run: Any) -> FinishedCell:
+    record = rec.CellRecord.from_run(run)
+    return FinishedCell(
+        run.info.run_id, dict(run.data.metrics), frozenset(record.metric_errors), record
+    )
+
+
 class Tracker:
     """Thin layer over MlflowClient with shapebench's naming and tagging conventions."""
 
@@ -144,12 +151,24 @@ class Tracker:
             order_by=["attributes.start_time DESC"],
             max_results=1,
         )
-        if not runs:
-            return None
-        record = rec.CellRecord.from_run(runs[0])
-        return FinishedCell(
-            runs[0].info.run_id, dict(runs[0].data.metrics), frozenset(record.metric_errors), record
+        return _finished_cell(runs[0]) if runs else None
+
+    def finished_cell_index(self, exp_id: str) -> dict[str, FinishedCell]:
+        """Every finished cell of an experiment by its key (the newest run of each key, as
+        :meth:`find_cell` gives it), read in one paged search: for a caller that looks up many
+        keys (a sweep's plan), where a search per key costs a scan of the store each."""
+        runs = search_all_runs(
+            self.client,
+            [exp_id],
+            filter_string="attributes.status = 'FINISHED'",
+            order_by=["attributes.start_time DESC"],
         )
+        index: dict[str, FinishedCell] = {}
+        for run in runs:
+            key = run.data.tags.get(rec.CELL_KEY_TAG)
+            if key and key not in index:
+                index[key] = _finished_cell(run)
+        return index
 
     def abandon_stale(self, exp_id: str, key: str, tag: str = rec.CELL_KEY_TAG) -> int:
         """Mark RUNNING runs with this key (left by a killed process) KILLED; return how many."""

@@ -91,6 +91,15 @@ def plan_sweep(
     runner = Runner(tracker)
     out = SweepPlan()
     trainings: dict[str, TrainingTask] = {}
+    # Each experiment's finished cells, read once: a search per cell scans the store each time,
+    # which made `sweep --status` quadratic in the store's size (benchmarks/bench_scale.py).
+    indexes: dict[str, dict] = {}
+
+    def finished_index(exp_id: str) -> dict:
+        if exp_id not in indexes:
+            indexes[exp_id] = tracker.finished_cell_index(exp_id)
+        return indexes[exp_id]
+
     for di, ds, mi, m in pairs(spec, methods):
         req = request(spec, m, ds, force=force, quiet=True)
         try:
@@ -109,7 +118,11 @@ def plan_sweep(
                         mi, di, split, seed, size, key, sp.variant.label, ds.name, training
                     )
                     out.cells.append(cell)
-                    done = runner.finished(sp.plan, exp_id, key) if exp_id else None
+                    done = (
+                        runner.finished(sp.plan, exp_id, key, finished_index(exp_id))
+                        if exp_id
+                        else None
+                    )
                     if done is not None:
                         out.finished[key] = done.run_id
                     else:

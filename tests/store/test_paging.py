@@ -106,6 +106,22 @@ def test_leaderboard_cells_and_runs_of_kind_see_every_run(store):
     assert [run_id for run_id, _ in tracker.runs_of_kind(exp, rec.PARENT_KIND)] == [parent]
 
 
+def test_the_finished_cell_index_holds_every_cell_as_find_cell_gives_it(store):
+    """What a sweep's plan (and so ``sweep --status``) looks its cells up in: every finished
+    cell past one page, each the run find_cell gives for its key; not the RUNNING one."""
+    tracker, exp, _, cells, _ = store
+    # A newer finished run of key0: the newest run of a key is its cell, as in find_cell.
+    again = rec.CellRecord("key0", "gauss", "synthetic", "novel", 50, 0)
+    newer = tracker.start_run(exp, "cell0-again", again.to_tags())
+    tracker.end(newer)
+    index = tracker.finished_cell_index(exp)
+    assert sorted(index) == [f"key{i}" for i in range(CELLS)]
+    for key, cell in index.items():
+        assert cell.run_id == tracker.find_cell(exp, key).run_id
+    assert index["key0"].run_id == newer
+    assert index["key3"].metrics == {"chamfer-l2.mean": 4.0}
+
+
 def test_listing_shows_every_child_and_run(store, tmp_path):
     from shapebench.store.listing import list_runs, show_run
 
