@@ -122,6 +122,29 @@ def test_the_finished_cell_index_holds_every_cell_as_find_cell_gives_it(store):
     assert index["key3"].metrics == {"chamfer-l2.mean": 4.0}
 
 
+def test_artifacts_of_searched_cells_are_read_from_their_folder(store, tmp_path, monkeypatch):
+    """A cell found by a search has a local artifact URI: its files are read from there, not
+    through MLflow's download (two run lookups per file); another run's still download."""
+    tracker, exp, _, cells, trainings = store
+    table = tmp_path / "per_object.csv"
+    table.write_text("object,value\na,1.5\n")
+    tracker.log_artifact(cells[4], table)
+    tracker.log_artifact(trainings[0], table)
+    tracker.finished_cells(exp)
+    downloads = []
+    real = tracker.client.download_artifacts
+    monkeypatch.setattr(
+        tracker.client,
+        "download_artifacts",
+        lambda *a, **k: downloads.append(a[0]) or real(*a, **k),
+    )
+    got = tracker.download_artifact(cells[4], "per_object.csv", tmp_path / "a")
+    assert got == tmp_path / "a" / "per_object.csv" and got.read_text() == table.read_text()
+    other = tracker.download_artifact(trainings[0], "per_object.csv", tmp_path / "b")
+    assert other.read_text() == table.read_text()
+    assert downloads == [trainings[0]]
+
+
 def test_listing_shows_every_child_and_run(store, tmp_path):
     from shapebench.store.listing import list_runs, show_run
 
