@@ -135,6 +135,7 @@ def _merge_one(
     merged: dict[str, str] = {}  # source run id -> target run id (trainings and parents)
     for exp, runs in batches:
         target_exp = _experiment(target, target_uri, exp.name)
+        present = _TargetRuns(target, target_exp)
         for run in runs:
             kind = run.data.tags.get(KIND_TAG, "")
             if kind not in IDENTITY:
@@ -143,9 +144,9 @@ def _merge_one(
                 report.skipped_unfinished += 1
                 continue
             key = run.data.tags.get(IDENTITY[kind], "")
-            existing = _find(target, target_exp, kind, key, run)
+            existing = present.find(kind, key, run)
             if existing is not None:
-                merged[run.info.run_id] = existing.info.run_id
+                merged[run.info.run_id] = existing.run_id
                 if kind == CELL_KIND and _scores_differ(run, existing):
                     report.disagreeing.append(key)
                 report.present[kind] = report.present.get(kind, 0) + 1
@@ -155,6 +156,7 @@ def _merge_one(
             merged[run.info.run_id] = _copy(
                 source, target, target_exp, run, source_uri, parent, training
             )
+            present.add(kind, key, run, merged[run.info.run_id])
             report.added[kind] = report.added.get(kind, 0) + 1
 
 
@@ -170,11 +172,11 @@ def _experiment(client: Any, uri: str, name: str) -> str:
     return client.create_experiment(name, artifact_location=location)
 
 
-def _scores_differ(run: Any, other: Any) -> bool:
+def _scores_differ(run: Any, other: _Present) -> bool:
     """Whether two runs of one cell key hold scores (each metric's mean, median and std) that
     differ beyond the cell-key tolerance."""
     names = CellRecord.from_run(run).cards
-    ours, theirs = run.data.metrics, other.data.metrics
+    ours, theirs = run.data.metrics, other.metrics
     for name in names:
         for stat in ("mean", "median", "std"):
             key = f"{name}.{stat}"
@@ -183,14 +185,40 @@ def _scores_differ(run: Any, other: Any) -> bool:
     return False
 
 
-def _find(client: Any, exp_id: str, kind: str, key: str, run: Any) -> Any | None:
-    """The target's run with the same identity (a parent: merged from the same source run)."""
-    if kind == PARENT_KIND:
-        flt = f"tags.`{MERGED_FROM}` LIKE '%{run.info.run_id}'"
-    else:
-        flt = f"tags.`{IDENTITY[kind]}` = '{key}' and attributes.status = 'FINISHED'"
-    found = client.search_runs([exp_id], filter_string=flt, max_results=1)
-    return found[0] if found else None
+@dataclass
+class _Present:
+    """A run of the target, as the merge compares it: its id and its metrics."""
+
+    run_id: str
+    metrics: dict[str, float]
+
+
+class _TargetRuns:
+    """The target experiment's runs by identity, read in one paged search: a search per source
+    run scans the growing target each time (merging 10,000 cells was quadratic)."""
+
+    def __init__(self, client: Any, exp_id: str) -> None:
+        self.by_identity: dict[tuple[str, str], _Present] = {}
+        for run in search_all_runs(client, [exp_id]):  # newest first: the first of a key wins
+            tags = run.data.tags
+            kind = tags.get(KIND_TAG, "")
+            if kind == PARENT_KIND:  # a parent is matched by the source run it came from
+                source = tags.get(MERGED_FROM, "").rpartition("#")[2]
+                key = (kind, source) if source else None
+            elif kind in IDENTITY and run.info.status == "FINISHED":
+                key = (kind, tags.get(IDENTITY[kind], ""))
+            else:
+                key = None
+            if key is not None and key not in self.by_identity:
+                self.by_identity[key] = _Present(run.info.run_id, dict(run.data.metrics))
+
+    def find(self, kind: str, key: str, run: Any) -> _Present | None:
+        """The target's run with the same identity (a parent: merged from the same source run)."""
+        return self.by_identity.get((kind, run.info.run_id if kind == PARENT_KIND else key))
+
+    def add(self, kind: str, key: str, run: Any, copied: str) -> None:
+        identity = (kind, run.info.run_id if kind == PARENT_KIND else key)
+        self.by_identity.setdefault(identity, _Present(copied, dict(run.data.metrics)))
 
 
 def _copy(
