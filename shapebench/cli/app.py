@@ -35,17 +35,20 @@ class Group(click.Group):
 
     def resolve_command(self, ctx: click.Context, args: list[str]) -> Any:
         name, cmd, rest = super().resolve_command(ctx, args)
+        ctx.meta[COMMAND_ARGS_KEY] = len(rest)  # where the command starts: _argv_after
         given = {k: v for k, v in (ctx.meta.get(GLOBALS_KEY) or {}).items() if v is not None}
-        if cmd is not None and given:
+        if cmd is not None and given and name is not None:
             takes = {p.name for p in cmd.params}
             unused = [_flag(k) for k in given if k not in takes]
-            if unused:
+            if unused and not ctx.resilient_parsing:
                 raise click.UsageError(
                     f"'{name}' does not use {', '.join(unused)}; leave "
                     f"{'it' if len(unused) == 1 else 'them'} out",
                     ctx,
                 )
-            ctx.default_map = {**(ctx.default_map or {}), name: given}
+            defaults = dict(ctx.default_map or {})
+            defaults[name] = {**defaults.get(name, {}), **given}
+            ctx.default_map = defaults
         return name, cmd, rest
 
     def invoke(self, ctx: click.Context) -> Any:
@@ -295,8 +298,10 @@ def _debug_option() -> click.Option:
     )
 
 
-# Where the group keeps the store options given before the sub-command (Group.resolve_command).
+# Where the group keeps the store options given before the sub-command (Group.resolve_command),
+# and how many arguments follow the sub-command's name.
 GLOBALS_KEY = "shapebench.globals"
+COMMAND_ARGS_KEY = "shapebench.command_args"
 
 
 def _remember_global(ctx: click.Context, param: click.Parameter, value: Any) -> None:
@@ -385,9 +390,13 @@ def _argv_after(command: str) -> list[str]:
     """This process's arguments for the sub-command ``command``, with the global options given
     before it (every one of them is also an option of the sub-command: :class:`Group`)."""
     args = sys.argv[1:]
-    if command not in args:
-        return args
-    at = args.index(command)
+    ctx = click.get_current_context(silent=True)
+    after = ctx.find_root().meta.get(COMMAND_ARGS_KEY) if ctx is not None else None
+    at = len(args) - after - 1 if after is not None else -1
+    if not (0 <= at < len(args) and args[at] == command):  # argv is not what click parsed
+        if command not in args:
+            return args
+        at = args.index(command)
     return args[:at] + args[at + 1 :]
 
 

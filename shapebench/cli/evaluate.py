@@ -89,9 +89,8 @@ from shapebench.cli.app import (
     "--jobs",
     "-j",
     type=int,
-    default=2,
-    show_default=True,
-    help="Worker processes of --launcher local (jobs at once for submitit-local).",
+    default=None,
+    help="Worker processes of --launcher local [2]; jobs at once for submitit-local [1].",
 )
 @click.option(
     "--slurm",
@@ -191,7 +190,7 @@ def run(
             sweep_file=sweep_file,
             settings=settings,
             launcher=launcher,
-            jobs=jobs,
+            jobs=jobs if jobs is not None else 2 if launcher == "local" else 1,
             trainer=given,
             overrides=_parse(slurm_opts, "--slurm"),
             quiet=quiet,
@@ -503,7 +502,7 @@ def train(
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_dataset, resolve_method
     from shapebench.train.ticket import training_ticket
-    from shapebench.train.training import train_here
+    from shapebench.train.training import ensure_checkpoint, train_here
 
     settings = _settings(profile, tracking_uri, cache_dir, workspace)
     reg = get_registry()
@@ -511,8 +510,16 @@ def train(
     if not resolved.cls.trains:
         raise ShapebenchError(f"method {method!r} does not train", "use 'shapebench run' directly")
     ds = resolve_dataset(reg, dataset, settings, data_root, _parse(dataset_opts, "-D"))
-    for seed in _int_list(seeds, "--seeds"):
-        trainer_seed = _trainer(settings, seed, **trainer)
-        ticket = training_ticket(resolved, ds, trainer_seed, settings, retrain)
-        record = train_here(ticket, settings, quiet)
+    seed_list = _int_list(seeds, "--seeds")
+    if not seed_list:
+        raise ShapebenchError("--seeds names no seed", "give e.g. --seeds 0 or --seeds 0,1,2")
+    for seed in seed_list:
+        options = _trainer(settings, seed, **trainer)
+        ticket = training_ticket(resolved, ds, options, settings, retrain)
+        if len(seed_list) == 1:
+            record = train_here(ticket, settings, quiet)
+        else:
+            # Several seeds: each trains in a child process of its own, as `run` trains them, so
+            # that the ranks a multi-device training launches re-run one seed, not the list.
+            record = ensure_checkpoint(ticket, settings, data_root, quiet)
         click.echo(f"checkpoint: {record['path']}")

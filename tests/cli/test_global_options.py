@@ -106,3 +106,23 @@ def test_tables_go_to_the_workspace_unless_told_otherwise(runner, tmp_path) -> N
     settings = make_settings(workspace=tmp_path / "ws")
     assert _out(None, settings) == tmp_path / "ws" / "leaderboards"
     assert _out("leaderboards", settings) == Path("leaderboards")
+
+
+def test_local_workers_get_the_global_options_even_one_named_like_the_command(
+    runner, monkeypatch, tmp_path
+) -> None:
+    """The workers' command line is this one's, the sub-command's name taken out where click
+    found it: not at an earlier option value spelled the same (``--workspace sweep``)."""
+    import sys
+
+    from shapebench.cli import evaluate
+
+    got = []
+    monkeypatch.setattr(evaluate, "_sweep_here", lambda launch, argv: got.append(argv))
+    args = ["--workspace", "sweep", "--profile", "quick", "sweep", "default", "-m", "gauss"]
+    args += ["--launcher", "local"]
+    monkeypatch.setattr(sys, "argv", ["shapebench", *args])
+    res = runner.invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    assert got == [["--workspace", "sweep", "--profile", "quick", "default", "-m", "gauss",
+                    "--launcher", "local"]]  # fmt: skip
