@@ -16,6 +16,7 @@ import click
 from shapebench import __version__
 from shapebench.api.errors import Interrupted, ShapebenchError
 from shapebench.config import DEFAULT_PROFILE
+from shapebench.train.lifecycle import note_stop_signal
 
 DEFAULT_CONTEXTS = "50,100,300,1000"
 
@@ -408,7 +409,9 @@ def _parse(pairs, flag) -> dict:
 
 def _sigterm_as_interrupt(signum: int, frame: Any) -> None:
     # A scheduler's or a parent's SIGTERM stops shapebench like Ctrl-C does: runs in progress are
-    # marked KILLED, child trainings are stopped, finished cells and checkpoints are kept.
+    # marked KILLED, child trainings are stopped, finished cells and checkpoints are kept. It is
+    # also remembered, for a training that starts after the interrupt was lost in an import.
+    note_stop_signal(signum)
     raise KeyboardInterrupt
 
 

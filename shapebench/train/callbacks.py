@@ -88,6 +88,10 @@ class StopOnSignal(pl.Callback):
         preempt = preemption_signal()
         for sig in (signal.SIGINT, signal.SIGTERM, *([preempt] if preempt else [])):
             self._previous[sig] = signal.signal(sig, self._handler)
+        from shapebench.train.lifecycle import stop_requested
+
+        if self.requested is None and (asked := stop_requested()) is not None:
+            self.requested = asked  # asked before training started, its interrupt lost
 
     def teardown(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
         import signal

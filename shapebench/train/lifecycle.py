@@ -28,6 +28,26 @@ CHILD_GRACE_SECONDS = 30
 PR_SET_PDEATHSIG = 1
 
 
+#: The signal that asked this process to stop, once one did (:func:`note_stop_signal`).
+_stop_signal: str | None = None
+
+
+def note_stop_signal(signum: int) -> None:
+    """Remember that ``signum`` (SIGTERM, SIGINT) asked this process to stop.
+
+    The ``KeyboardInterrupt`` such a signal raises can be lost: a signal that arrives while a
+    library is being imported lands in code that may catch every exception (an optional import's
+    probe), and the process carries on. A training that starts after that still stops
+    (:func:`stop_requested`, read by the training before it fits and by ``StopOnSignal``)."""
+    global _stop_signal
+    _stop_signal = signal.Signals(signum).name
+
+
+def stop_requested() -> str | None:
+    """The name of the signal that asked this process to stop, or None."""
+    return _stop_signal
+
+
 def die_with_parent() -> Callable[[], None] | None:
     """A ``preexec_fn`` for :class:`subprocess.Popen` that has Linux send the child SIGTERM
     (handled like Ctrl-C: a training saves and stops, a sweep worker stops its own training)

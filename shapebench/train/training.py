@@ -34,7 +34,13 @@ from shapebench.config import Settings
 from shapebench.registry.resolve import ResolvedMethod
 from shapebench.store.records import CHECKPOINT_KEY_TAG, TRAINING_DEVICE_TAG, training_tags
 from shapebench.store.tracking import Tracker, flatten, training_experiment_name
-from shapebench.train.lifecycle import PARENT_ENV, die_with_parent, wait_child, watch_parent
+from shapebench.train.lifecycle import (
+    PARENT_ENV,
+    die_with_parent,
+    stop_requested,
+    wait_child,
+    watch_parent,
+)
 from shapebench.train.ticket import TrainingTicket, apply_trainer, checkpoint_key, step_budget
 
 RUN_ID_ENV = "SHAPEBENCH_TRAINING_RUN_ID"
@@ -147,6 +153,8 @@ def train_here(ticket: TrainingTicket, settings: Settings, quiet: bool = False) 
     """
     from shapebench.store.locks import wait_lock
 
+    if stop_requested() is not None:  # asked to stop while starting; the interrupt was lost
+        raise KeyboardInterrupt
     method, dataset, key, workdir = ticket.method, ticket.dataset, ticket.key, ticket.workdir
     workdir.mkdir(parents=True, exist_ok=True)
     run_id = os.environ.get(RUN_ID_ENV)
@@ -211,6 +219,8 @@ def _train_locked(ticket: TrainingTicket, settings: Settings, quiet: bool, run_i
         os.environ[RUN_ID_ENV] = run_id  # inherited by the ranks Lightning launches
     instance = method.instantiate()
     try:
+        if stop_requested() is not None:  # asked to stop while starting; the interrupt was lost
+            raise KeyboardInterrupt
         path = instance.fit(
             TrainingContext(dataset, trainer, workdir, settings.tracking_uri, run_id, quiet)
         )

@@ -204,7 +204,14 @@ def test_igr_completion_evaluates_the_eikonal_term_on_the_option_s_count(samples
     method.module = method.build_module(1).eval()
     method.device = torch.device("cpu")
     sizes = []
-    method.module.decoder.register_forward_hook(lambda m, args, out: sizes.append(args[1].shape))
+    decoder = method.module.decoder
+    shared = decoder.forward_shared  # what the test-time search evaluates (one code per object)
+
+    def recording(z, x):
+        sizes.append(x.shape)
+        return shared(z, x)
+
+    decoder.forward_shared = recording
     method.encode(_contexts(n=50))
     # Every step sees the 50 context points, then its Eikonal samples, for both objects.
     assert sizes and set(sizes) == {torch.Size([2, 50 + seen, 3])}

@@ -42,7 +42,8 @@ def one_page(client, experiment_ids, filter_string="", order_by=None, limit=None
 @pytest.mark.parametrize(
     ("module", "command"),
     [
-        ("shapebench.store.tracking", "leaderboard"),
+        # The tracker's searches serve the sweep's plan first (then the leaderboard).
+        ("shapebench.store.tracking", "sweep --status"),
         ("shapebench.store.listing", "runs --json"),
         ("shapebench.store.merge", "merge"),
     ],

@@ -309,3 +309,28 @@ def test_the_fallback_watchdog_stops_a_training_whose_parent_is_already_gone(tmp
     shell = f'{sys.executable} -c "{code}"; true'  # `; true`: sh forks, no exec
     child = subprocess.run(["sh", "-c", shell], env=env, capture_output=True, text=True, timeout=60)
     assert child.returncode == 0 and "kept" in child.stdout, child.stderr
+
+
+def test_a_stop_asked_before_training_started_is_kept_when_its_interrupt_was_lost(
+    monkeypatch, tmp_path
+):
+    """SIGTERM while a library is imported can land in code that swallows its interrupt: the
+    signal is remembered, and the training stops after its first step (StopOnSignal) or before
+    it starts (train_here)."""
+    from shapebench.train import lifecycle
+    from shapebench.train.callbacks import StopOnSignal
+
+    monkeypatch.setattr(lifecycle, "_stop_signal", None)
+    stop = StopOnSignal(tmp_path / "last.ckpt")
+    stop.on_train_start(None, None)
+    stop.teardown(None, None, "fit")
+    assert stop.requested is None
+    lifecycle.note_stop_signal(signal.SIGTERM)
+    assert lifecycle.stop_requested() == "SIGTERM"
+    stop.on_train_start(None, None)
+    stop.teardown(None, None, "fit")
+    assert stop.requested == "SIGTERM"
+    from shapebench.train.training import train_here
+
+    with pytest.raises(KeyboardInterrupt):
+        train_here(None, None)  # type: ignore[arg-type]  # stops before reading the ticket
