@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from shapebench.boards.board import Board, Row, below_floor, floor_labels, table_id
-from shapebench.boards.markdown import FLOOR_MARK, tail_text
+from shapebench.boards.markdown import FLOOR_MARK, cell_marks
 from shapebench.boards.stats import ALPHA
 
 
@@ -59,13 +59,7 @@ def _raw_cell(board: Board, row: Row, ctx: int) -> str:
             f"{'; ' if title else ''}p vs floor {labels.get(floor['floor'], floor['floor'])} "
             f"{floor['p_vs_floor']:.3g}, Holm {floor['p_floor_holm']:.3g}"
         )
-        if bool(floor["below_floor"]):
-            text += f" {FLOOR_MARK}"
-    tail = tail_text(board, r)
-    if tail:
-        text += f" ({tail})"
-    if r["failures"]:
-        text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
+    text += cell_marks(board, r, floor is not None and bool(floor["below_floor"]))
     attrs = f' class="{cls}"' if cls else ""
     return f'<td data-sort="{_num(r["mean"])}"{attrs} title="{_e(title)}">{_e(text)}</td>'
 

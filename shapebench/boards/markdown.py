@@ -42,6 +42,18 @@ def tail_text(board: Board, r: pd.Series) -> str:
     return text
 
 
+def cell_marks(board: Board, r: pd.Series, below: bool) -> str:
+    """What follows a raw cell's mean in both table formats: the floor mark (``below``: not
+    better than the floor), the median and tail share, the objects that did not fail."""
+    text = f" {FLOOR_MARK}" if below else ""
+    tail = tail_text(board, r)
+    if tail:
+        text += f" ({tail})"
+    if r["failures"]:
+        text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
+    return text
+
+
 def card_line(board: Board) -> str:
     """The metric card in words, with the tail threshold the table reads it at."""
     text = card_text(board.card)
@@ -88,14 +100,7 @@ def _cell(board: Board, row: Row, ctx: int) -> str:
     elif not sig.empty and bool(sig.iloc[0]["tied"]):
         text += " ≈"
     floor = below_floor(board, row.variant, ctx)
-    if floor is not None and bool(floor["below_floor"]):
-        text += f" {FLOOR_MARK}"
-    tail = tail_text(board, r)
-    if tail:
-        text += f" ({tail})"
-    if r["failures"]:
-        text += f" ({int(r['n_ok'])}/{int(r['n'])} ok)"
-    return text
+    return text + cell_marks(board, r, floor is not None and bool(floor["below_floor"]))
 
 
 def _norm_cell(board: Board, row: Row, ctx: int) -> str:
