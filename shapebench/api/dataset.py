@@ -37,6 +37,7 @@ from shapebench.preprocess import (
     PREPROCESS_VERSION,
     PreprocessError,
     PreprocessParams,
+    prepare_ground_truth,
     prepare_mesh,
 )
 
@@ -166,6 +167,14 @@ class Dataset(ABC):
         :attr:`provides_ground_truth` (others are ignored).
         """
 
+    def ground_truth_points(self, ref: ObjectRef) -> np.ndarray:
+        """The ground-truth points of one object, as :meth:`load` gives them
+        (``ObjectData.gt_points``), for a user that needs nothing else of it; raise
+        :class:`ObjectLoadError` if impossible. The default loads the object; a dataset that can
+        make them more cheaply than the whole object overrides it (:class:`MeshDataset`: without
+        the visible points' ray casting)."""
+        return self.load(ref).gt_points
+
     @property
     def cache_root(self) -> Path:
         """Where this exact data version's arrays are cached."""
@@ -273,6 +282,26 @@ class MeshDataset(Dataset):
             ref, arrays["surface_points"], arrays["surface_normals"], arrays["gt_points"], extra
         )
 
+    def ground_truth_points(self, ref: ObjectRef) -> np.ndarray:
+        """The cached object's ground truth; when the object is not cached yet, the same points
+        made without its visible points and not cached (the whole object is prepared by the
+        first :meth:`load`). An object whose visible points would fail to prepare (none visible)
+        still has its ground truth here."""
+        path = self.cache_path(ref)
+        failed = path.with_suffix(".error.txt")
+        if failed.exists():
+            raise ObjectLoadError(failed.read_text())
+        arrays = _read_npz(path)
+        if arrays is not None:
+            return arrays["gt_points"]
+        try:
+            mesh = self.mesh(ref)
+            return prepare_ground_truth(mesh, self.preprocess_params(), self._preprocess_rng(ref))
+        except ObjectLoadError:
+            raise
+        except Exception as exc:
+            raise ObjectLoadError(_preprocess_failure(exc)) from exc
+
     def _extra(self, ref: ObjectRef, kind: Supervision) -> np.ndarray:
         """A training array, built from the normalised mesh on first use and cached on its own."""
         from shapebench.preprocess.samples import complete_points, occupancy_samples, sdf_samples
@@ -337,22 +366,29 @@ class MeshDataset(Dataset):
     def training_cache_root(self) -> Path:
         return self.cache_dir / self.name / self.training_data_fingerprint() / "training"
 
+    def _preprocess_rng(self, ref: ObjectRef) -> np.random.Generator:
+        """The generator an object's preprocessing draws from: seeded by the data version and the
+        object, so every machine and run prepares the same arrays."""
+        return np.random.default_rng(stable_seed("preprocess", self.data_fingerprint(), ref.id))
+
     def _build(self, ref: ObjectRef, path: Path) -> dict[str, np.ndarray]:
         try:
             mesh = self.mesh(ref)
-            rng = np.random.default_rng(stable_seed("preprocess", self.data_fingerprint(), ref.id))
-            arrays = prepare_mesh(mesh, self.preprocess_params(), rng)
+            arrays = prepare_mesh(mesh, self.preprocess_params(), self._preprocess_rng(ref))
         except Exception as exc:
-            reason = (
-                str(exc)
-                if isinstance(exc, (ObjectLoadError, PreprocessError))
-                else (f"cannot read or preprocess mesh: {type(exc).__name__}: {exc}")
-            )
+            reason = _preprocess_failure(exc)
             path.parent.mkdir(parents=True, exist_ok=True)
             path.with_suffix(".error.txt").write_text(reason)
             raise ObjectLoadError(reason) from exc
         save_npz_atomic(path, arrays)
         return arrays
+
+
+def _preprocess_failure(exc: Exception) -> str:
+    """The one line recorded for an object whose mesh could not be read or preprocessed."""
+    if isinstance(exc, (ObjectLoadError, PreprocessError)):
+        return str(exc)
+    return f"cannot read or preprocess mesh: {type(exc).__name__}: {exc}"
 
 
 _BASE_ARRAYS = ("surface_points", "surface_normals", "gt_points")

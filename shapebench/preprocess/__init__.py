@@ -10,7 +10,14 @@ from shapebench.preprocess.pipeline import (
     PREPROCESS_VERSION,
     PreprocessError,
     PreprocessParams,
+    prepare_ground_truth,
     prepare_mesh,
 )
 
-__all__ = ["PREPROCESS_VERSION", "PreprocessError", "PreprocessParams", "prepare_mesh"]
+__all__ = [
+    "PREPROCESS_VERSION",
+    "PreprocessError",
+    "PreprocessParams",
+    "prepare_ground_truth",
+    "prepare_mesh",
+]

@@ -90,6 +90,31 @@ def test_real_meshes_load_normalised_and_the_broken_file_fails_alone(tmp_path):
 
 
 @needs_shared
+def test_the_ground_truth_alone_is_the_loaded_objects_bit_for_bit_and_caches_nothing(tmp_path):
+    folder = make_folder(tmp_path / "data")
+    alone = dataset(folder, tmp_path / "cache-alone")
+    whole = dataset(folder, tmp_path / "cache-whole")
+    for ref in alone.objects(NOVEL):
+        if ref.id == "animals/broken":
+            with pytest.raises(ObjectLoadError, match="broken.obj"):
+                alone.ground_truth_points(ref)
+            continue
+        gt = alone.ground_truth_points(ref)  # from the mesh: no visible points were cast
+        assert not alone.cache_path(ref).exists()
+        loaded = whole.load(ref).gt_points
+        assert gt.dtype == loaded.dtype and np.array_equal(gt, loaded)
+        # Once the object is cached, the cached array is what it returns.
+        assert np.array_equal(whole.ground_truth_points(ref), loaded)
+    # A failure the whole preparation recorded is reported without reading the mesh again.
+    broken = ObjectRef("animals/broken", "animals")
+    with pytest.raises(ObjectLoadError):
+        whole.load(broken)
+    (folder / "animals" / "broken.obj").unlink()
+    with pytest.raises(ObjectLoadError, match="broken.obj"):
+        whole.ground_truth_points(broken)
+
+
+@needs_shared
 def test_train_fraction_splits_each_category_deterministically(tmp_path):
     root = make_folder(tmp_path / "data")
     ds = dataset(root, tmp_path / "cache", train_fraction=0.5)

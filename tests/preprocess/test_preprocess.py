@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from shapebench.geometry.sampling import sample_surface
-from shapebench.preprocess import PreprocessParams, prepare_mesh, visibility
+from shapebench.preprocess import PreprocessParams, prepare_ground_truth, prepare_mesh, visibility
 from shapebench.preprocess.normalize import normalize
 from shapebench.preprocess.visibility import fibonacci_viewpoints, visible_points
 
@@ -97,6 +97,15 @@ def test_prepare_mesh_sizes_and_determinism():
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
     assert np.linalg.norm(a["gt_points"], axis=1).max() <= 1.0 + 1e-5
+
+
+def test_the_ground_truth_alone_equals_prepare_meshs_for_the_same_generator():
+    mesh = trimesh.creation.capsule(height=1.0, radius=0.4)
+    params = PreprocessParams(surface_candidates=4000, gt_points=3000, viewpoints=50)
+    whole = prepare_mesh(mesh, params, np.random.default_rng(7))
+    alone = prepare_ground_truth(mesh, params, np.random.default_rng(7))
+    assert alone.dtype == np.float32
+    np.testing.assert_array_equal(alone, whole["gt_points"])
 
 
 def test_sdf_samples_match_a_sphere_with_and_without_a_closed_mesh():
