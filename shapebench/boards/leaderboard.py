@@ -55,8 +55,12 @@ from shapebench.config import Settings
 from shapebench.store.records import card_column
 from shapebench.store.tracking import Tracker, experiment_name
 
-#: The row-label overrides a context protocol adds (registry/variant.py).
-_PROTOCOL_OVERRIDES = {"crop", "protocol", "noise"}
+#: The row-label overrides every row of one table carries alike (registry/variant.py): its
+#: context protocol's, and the profile of a sweep run at another than the default profile
+#: (``configs/sweeps/crop-50.yaml`` runs at ``quick``: ``retrieval[crop=0.5,profile=quick]``).
+#: A floor or reference named by its method is the method's row that differs from its defaults
+#: by these alone.
+_TABLE_WIDE_OVERRIDES = {"crop", "protocol", "noise", "profile"}
 
 #: The rows a table's others must beat without ``--floor``: handing back the context unchanged
 #: (gauss with sigma 0, labelled ``given-points`` in the sweeps) and retrieving the nearest
@@ -70,7 +74,7 @@ def _floor_rows(rows: list[Row], names: list[str] | tuple[str, ...]) -> list[str
     found: list[str] = []
     for name in names:
         hits = [r for r in rows if r.label == name] or [
-            r for r in rows if r.method == name and set(r.overrides) <= _PROTOCOL_OVERRIDES
+            r for r in rows if r.method == name and set(r.overrides) <= _TABLE_WIDE_OVERRIDES
         ]
         found += [r.variant for r in hits if r.variant not in found]
     return found
@@ -241,11 +245,16 @@ def build_board(
     floor_table = board_stats.floor_test(scored, floor_rows, higher) if floor_rows else None
     ref_row = next((r for r in rows if r.label == reference), None)
     protocol_name = runs["_protocol"].iloc[0] if "_protocol" in runs else DEFAULT_CONTEXT
-    if ref_row is None and protocol_name != DEFAULT_CONTEXT:
-        # In a table of one context protocol every row carries it ([crop=0.5]): the reference
-        # is the row whose only differences from its method's defaults are the protocol's.
+    if ref_row is None:
+        # In a table of one context protocol, or of a sweep at another profile, every row
+        # carries it ([crop=0.5,profile=quick]): the reference is the row whose only differences
+        # from its method's defaults are those.
         ref_row = next(
-            (r for r in rows if r.method == reference and set(r.overrides) <= _PROTOCOL_OVERRIDES),
+            (
+                r
+                for r in rows
+                if r.method == reference and set(r.overrides) <= _TABLE_WIDE_OVERRIDES
+            ),
             None,
         )
     normalized, note = None, ""

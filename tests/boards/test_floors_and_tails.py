@@ -83,6 +83,29 @@ def test_the_better_floor_is_the_floor_and_missing_floors_are_no_error():
     assert board_stats.floor_test(scored, []).empty
 
 
+def test_a_floor_named_by_its_method_is_found_in_a_table_of_another_profile_or_protocol():
+    """A crop sweep at the quick profile labels every row ``[crop=0.5,profile=quick]``: the
+    floors (and the reference) are still its rows of those methods, and not a row whose method
+    options differ."""
+    from shapebench.boards.board import Row
+    from shapebench.boards.leaderboard import _floor_rows
+
+    def row(variant: str, method: str, **overrides) -> Row:
+        return Row(variant, f"{method}{sorted(overrides.items())}", method, method, overrides)
+
+    rows = [
+        row("r", "retrieval", crop=0.5, profile="quick"),
+        row("g", "gauss", crop=0.5, profile="quick"),
+        row("g0", "gauss", crop=0.5, profile="quick", sigma=0.0),
+        row("m", "msc-noopt", protocol="depth", noise=0.005),
+    ]
+    rows[2] = Row("g0", "given-points", "gauss", "gauss", rows[2].overrides)
+    assert _floor_rows(rows, ("given-points", "retrieval")) == ["g0", "r"]
+    assert _floor_rows(rows, ("msc-noopt",)) == ["m"]
+    # a method row with an option of its own is not the method's floor row
+    assert _floor_rows([row("g1", "gauss", sigma=0.05)], ("gauss",)) == []
+
+
 def test_median_and_tail_share_equal_hand_computed_ones():
     values = np.array([0.001, 0.002, 0.004, 0.02, 0.05])
     failed = _scored({"m": np.r_[values, 0.5]})
