@@ -286,7 +286,8 @@ class MeshDataset(Dataset):
         """The cached object's ground truth; when the object is not cached yet, the same points
         made without its visible points and not cached (the whole object is prepared by the
         first :meth:`load`). An object whose visible points would fail to prepare (none visible)
-        still has its ground truth here."""
+        still has its ground truth here. A subclass whose :meth:`load` changes the ground truth
+        overrides this too (or returns ``self.load(ref).gt_points``)."""
         path = self.cache_path(ref)
         failed = path.with_suffix(".error.txt")
         if failed.exists():
