@@ -266,10 +266,7 @@ class MeshDataset(Dataset):
         self, ref: ObjectRef, need: frozenset[Supervision | GroundTruthArray] = frozenset()
     ) -> ObjectData:
         path = self.cache_path(ref)
-        failed = path.with_suffix(".error.txt")
-        if failed.exists():  # preprocessing already failed for this exact data version
-            raise ObjectLoadError(failed.read_text())
-        arrays = _read_npz(path)
+        arrays = self._cached(path)
         if arrays is None:
             arrays = self._build(ref, path)
         extra = {k: v for k, v in arrays.items() if k not in _BASE_ARRAYS}
@@ -288,20 +285,23 @@ class MeshDataset(Dataset):
         first :meth:`load`). An object whose visible points would fail to prepare (none visible)
         still has its ground truth here. A subclass whose :meth:`load` changes the ground truth
         overrides this too (or returns ``self.load(ref).gt_points``)."""
-        path = self.cache_path(ref)
-        failed = path.with_suffix(".error.txt")
-        if failed.exists():
-            raise ObjectLoadError(failed.read_text())
-        arrays = _read_npz(path)
+        arrays = self._cached(self.cache_path(ref))
         if arrays is not None:
             return arrays["gt_points"]
         try:
             mesh = self.mesh(ref)
             return prepare_ground_truth(mesh, self.preprocess_params(), self._preprocess_rng(ref))
-        except ObjectLoadError:
-            raise
         except Exception as exc:
             raise ObjectLoadError(_preprocess_failure(exc)) from exc
+
+    @staticmethod
+    def _cached(path: Path) -> dict[str, np.ndarray] | None:
+        """The cached arrays at ``path``, None when not cached (or damaged); raise
+        :class:`ObjectLoadError` when preprocessing already failed for this exact data version."""
+        failed = path.with_suffix(".error.txt")
+        if failed.exists():
+            raise ObjectLoadError(failed.read_text())
+        return _read_npz(path)
 
     def _extra(self, ref: ObjectRef, kind: Supervision) -> np.ndarray:
         """A training array, built from the normalised mesh on first use and cached on its own."""

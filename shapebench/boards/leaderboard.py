@@ -68,14 +68,18 @@ _TABLE_WIDE_OVERRIDES = {"crop", "protocol", "noise", "profile"}
 DEFAULT_FLOORS = ("given-points", "retrieval")
 
 
+def _is_plain_row(row: Row, method: str) -> bool:
+    """Whether ``row`` is ``method``'s row that differs from its defaults only by what every row
+    of its table carries (:data:`_TABLE_WIDE_OVERRIDES`)."""
+    return row.method == method and set(row.overrides) <= _TABLE_WIDE_OVERRIDES
+
+
 def _floor_rows(rows: list[Row], names: list[str] | tuple[str, ...]) -> list[str]:
-    """The variant keys of the floor rows: per name, the rows labelled so, else the rows of the
-    method of that name whose only options are the context protocol's (as the reference)."""
+    """The variant keys of the floor rows: per name, the rows labelled so, else the plain rows
+    of the method of that name (as the reference)."""
     found: list[str] = []
     for name in names:
-        hits = [r for r in rows if r.label == name] or [
-            r for r in rows if r.method == name and set(r.overrides) <= _TABLE_WIDE_OVERRIDES
-        ]
+        hits = [r for r in rows if r.label == name] or [r for r in rows if _is_plain_row(r, name)]
         found += [r.variant for r in hits if r.variant not in found]
     return found
 
@@ -249,14 +253,7 @@ def build_board(
         # In a table of one context protocol, or of a sweep at another profile, every row
         # carries it ([crop=0.5,profile=quick]): the reference is the row whose only differences
         # from its method's defaults are those.
-        ref_row = next(
-            (
-                r
-                for r in rows
-                if r.method == reference and set(r.overrides) <= _TABLE_WIDE_OVERRIDES
-            ),
-            None,
-        )
+        ref_row = next((r for r in rows if _is_plain_row(r, reference)), None)
     normalized, note = None, ""
     if ref_row is None:
         note = (
