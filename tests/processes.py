@@ -47,6 +47,27 @@ def processes_mentioning(text: str, parent: int | None = None) -> list[int]:
     return found
 
 
+def lock_holders(folder: Path, pattern: str = "*.lock") -> dict[int, list[Path]]:
+    """The processes holding a POSIX lock on a file of ``folder`` matching ``pattern``, read
+    from ``/proc/locks``: unlike trying the lock, looking takes nothing from its holder (a
+    worker that found its cell's lock taken would leave the cell for later)."""
+    files = {}
+    for path in Path(folder).glob(pattern):
+        try:
+            files[path.stat().st_ino] = path
+        except OSError:
+            continue
+    held: dict[int, list[Path]] = {}
+    for line in Path("/proc/locks").read_text().splitlines():
+        fields = line.split()
+        if "->" in fields or len(fields) < 6 or fields[1] != "POSIX":
+            continue  # a waiter's line, or another kind of lock
+        pid, inode = int(fields[4]), int(fields[5].rsplit(":", 1)[1])
+        if inode in files:
+            held.setdefault(pid, []).append(files[inode])
+    return held
+
+
 def last_ckpt(sb) -> Path | None:
     found = list((sb.workspace / "checkpoints" / "igr").glob("*/last.ckpt"))
     return found[0] if found else None

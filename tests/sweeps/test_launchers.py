@@ -8,7 +8,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from processes import processes_mentioning, wait_for
+from processes import lock_holders, processes_mentioning, wait_for
 from test_soak import SWEEP, all_runs, cell_runs, leaderboard, score_columns
 
 from shapebench.api.protocol import SCORE_RTOL
@@ -113,14 +113,7 @@ def test_workers_visit_the_methods_in_orders_that_meet_once():
 def cell_claimed(sb) -> bool:
     """Some process holds a cell's claim: it is computing that cell (cheaper to poll than the
     store, so that short cells are not missed)."""
-    from shapebench.store.locks import try_lock
-
-    for path in (sb.workspace / "locks" / "cells").glob("*.lock"):
-        lock = try_lock(path)
-        if lock is None:
-            return True
-        lock.release()
-    return False
+    return bool(lock_holders(sb.workspace / "locks" / "cells", "[!p]*.lock"))
 
 
 def _sweep_file(tmp_path):
@@ -171,10 +164,22 @@ def test_two_local_workers_give_the_inline_leaderboard_even_when_one_is_killed(
     sb = shapebench
     sweep = _sweep_file(tmp_path)
     proc = sb.popen("sweep", str(sweep), "-q", "--launcher", "local", "-j", "2")
-    # Kill worker 1 while some cell is being computed: the launcher finishes its work.
-    wait_for(lambda: cell_runs(sb, status="RUNNING"), timeout=300, what="a cell in progress")
-    workers = processes_mentioning("--worker 1", parent=proc.pid)  # this sweep's, not others'
-    assert workers, "no worker 1 running"
+
+    # Kill worker 1 while it computes a cell (holds the cell's claim): the launcher finishes
+    # its work. Waiting for "some cell RUNNING" and then killing worker 1 raced with worker 1
+    # having finished its share and exited (CI, stop 65).
+    def worker_1_computing() -> list[int]:
+        mine = processes_mentioning("--worker 1", parent=proc.pid)  # this sweep's, not others'
+        holders = lock_holders(sb.workspace / "locks" / "cells", "[!p]*.lock")  # not parent-*
+        return [pid for pid in mine if pid in holders]
+
+    def worker_logs() -> str:
+        logs = sorted(sb.workspace.rglob("*worker*.log"))
+        return "\n".join(f"{log.name}:\n{log.read_text()[-2000:]}" for log in logs)
+
+    workers = wait_for(
+        worker_1_computing, timeout=300, what="worker 1 computing a cell", explain=worker_logs
+    )
     for pid in workers:
         os.kill(pid, signal.SIGKILL)
     out, err = proc.communicate(timeout=900)
