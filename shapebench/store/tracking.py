@@ -81,7 +81,7 @@ class FinishedCell:
     record: Any = None
 
 
-def _local_path(artifact_uri: str | None, name: str) -> Path | None:
+def local_artifact_path(artifact_uri: str | None, name: str = "") -> Path | None:
     """The file of artifact ``name`` under a local ``artifact_uri`` (``file:`` or a plain path);
     None for a remote one (a tracking server's, a bucket)."""
     if not artifact_uri:
@@ -313,7 +313,7 @@ class Tracker:
 
     def download_artifact(self, run_id: str, name: str, dst: Path) -> Path:
         """The run's artifact ``name``, copied to ``dst / name``."""
-        local = _local_path(self._artifact_uris.get(run_id), name)
+        local = local_artifact_path(self._artifact_uris.get(run_id), name)
         if local is not None and local.is_file():
             target = Path(dst) / name
             target.parent.mkdir(parents=True, exist_ok=True)
