@@ -55,9 +55,10 @@ so their kernels' blocking and last bits (measured, quickstart's 44 trained obje
 committed store's 110, same machine and thread count: MSC up to 4.8e-4 per object, 11 of 240
 pairs above 1e-5; MSC-hier 1.3e-4, OccNet 1.1e-4, IGR 9.2e-5; rows not sampled from a mesh
 3e-7; and alone: MSC at 50 points, one thread, the same 22 objects evaluated among 2 or among 4
-test objects per category: 2 of 22 differ, by up to 1.9e-4). Pinning every cell to one thread count would buy bitwise equality on one machine
-only, at the cost of idle cores; a sampler without cumulative picks would make rarer but larger
-jumps (one of 30,000 points redrawn anywhere), not none.
+test objects per category: 2 of 22 differ, by up to 1.9e-4). Pinning every cell to one
+thread count would buy bitwise equality on one machine only, at the cost of idle cores; a
+sampler without cumulative picks would make rarer but larger jumps
+(one of 30,000 points redrawn anywhere), not none.
 
 Threshold metrics (F-score) count points on either side of a distance: a point within rounding
 of the threshold can cross it, so they agree to a point or two of the completion per object

@@ -42,7 +42,7 @@ def _fill(tracker: Tracker, tmp: Path) -> list[str]:
     tracker.end(training)
     cells = []
     for seed in range(3):
-        record = rec.CellRecord("key%d" % seed, "igr", "synthetic", "novel", 50, seed)
+        record = rec.CellRecord(f"key{seed}", "igr", "synthetic", "novel", 50, seed)
         cell = tracker.start_run(
             exp, f"cell{seed}", {**record.to_tags(), rec.TRAINING_RUN_TAG: training}
         )
