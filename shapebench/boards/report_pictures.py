@@ -56,8 +56,9 @@ class Artifacts:
 
 
 def cell_pictures(tracker: Tracker, run_id: str, dst: Path) -> dict[str, dict[str, np.ndarray]]:
-    """Object id stem -> arrays of the pictures a cell logged (``pictures/*.npz``); for cells
-    logged before pictures existed, the completed ``.ply`` clouds and their contexts."""
+    """Object id stem -> arrays of the pictures a cell logged (``pictures/*.npz``, with the
+    cell's PNG of it as ``png`` bytes where the arrays name its caption); for cells logged
+    before pictures existed, the completed ``.ply`` clouds and their contexts."""
     out: dict[str, dict[str, np.ndarray]] = {}
     store = Artifacts(tracker, run_id, dst)
     if store.names("pictures"):
@@ -65,6 +66,9 @@ def cell_pictures(tracker: Tracker, run_id: str, dst: Path) -> dict[str, dict[st
         for npz in sorted(folder.glob("*.npz")):
             with np.load(npz) as arrays:
                 out[npz.stem] = {k: arrays[k] for k in arrays.files}
+            png = npz.with_suffix(".png")
+            if "title" in out[npz.stem] and png.exists():
+                out[npz.stem]["png"] = np.frombuffer(png.read_bytes(), dtype=np.uint8)
         return out
     plys = [p for p in store.names("completions") if p.endswith(".ply") and ".sample" not in p]
     if not plys:
@@ -203,8 +207,13 @@ def worst_pictures(tracker: Tracker, board: Board) -> list[tuple[str, str, int, 
 
 
 def spread_picture(arrays: dict[str, np.ndarray], title: str) -> str:
+    """The picture of one object's cell as a data URI: the PNG its cell logged when that was
+    drawn with this caption (the same arrays, so the same bytes; a relabelled row's was not),
+    else drawn now."""
     from shapebench.evaluation.pictures import picture_png
 
+    if "png" in arrays and str(arrays.get("title", "")) == title:
+        return data_uri(arrays["png"].tobytes())
     return data_uri(picture_png(arrays, title))
 
 

@@ -32,7 +32,8 @@ def log_cell_artifacts(
 ) -> None:
     """The per-object table, the contexts, and for the pictured objects their completed
     clouds (``completions/*.ply``) and pictures (``pictures/<object>.png``, drawn from the
-    arrays kept beside it as ``.npz``: context, completion, ground truth, spread); when
+    arrays kept beside it as ``.npz``: context, completion, ground truth, spread, and the
+    picture's caption as ``title``); when
     pictured objects failed, ``spare`` successes fill the ``.ply`` examples up."""
     import trimesh
 
@@ -63,8 +64,13 @@ def log_cell_artifacts(
                         (truths or {}).get(obj),
                         completion.cache.get("spread"),
                     )
-                    np.savez_compressed(pic_dir / f"{file_stem(obj)}.npz", **arrays)
-                    png = picture_png(arrays, f"{title}: {obj}" if title else obj)
+                    caption = f"{title}: {obj}" if title else obj
+                    # The caption beside the arrays: the report embeds this PNG as it is when
+                    # it would draw the same caption, instead of drawing it again.
+                    np.savez_compressed(
+                        pic_dir / f"{file_stem(obj)}.npz", **arrays, title=np.array(caption)
+                    )
+                    png = picture_png(arrays, caption)
                     (pic_dir / f"{file_stem(obj)}.png").write_bytes(png)
             except Exception as exc:  # a picture is a view of the results, not one of them
                 echo(

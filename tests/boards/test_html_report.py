@@ -309,5 +309,33 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     text = page.read_text()
     assert "Posterior uncertainty" in text
     assert text.count('alt="posterior, 50 points: box"') == 1
+    # The cell logged the picture's caption beside its arrays, and the report embeds the PNG
+    # the cell drew with that caption instead of drawing it again.
+    assert str(arrays["title"]) == "posterior k=50: box"
+    logged = Path(client.download_artifacts(cells[0].run_id, "pictures/box.png", str(tmp_path)))
+    uri = "data:image/png;base64," + base64.b64encode(logged.read_bytes()).decode("ascii")
+    assert f'<img alt="posterior, 50 points: box" src="{uri}">' in text
     assert text.count('<img alt="qualitative grid') == 2
     print(f"report built in {seconds:.1f} s")
+
+
+def test_a_spread_picture_is_the_cells_png_only_under_the_caption_it_was_drawn_with():
+    """The report reuses a cell's PNG when it would draw the same caption; under another
+    caption (a relabelled row, an older cell without one) it draws the arrays anew."""
+    from shapebench.boards.report_pictures import data_uri, spread_picture
+
+    rng = np.random.default_rng(0)
+    cloud = rng.normal(size=(200, 3)).astype(np.float32)
+    arrays = {
+        "context": cloud[:50],
+        "completion": cloud,
+        "spread": rng.random(200).astype(np.float32),
+        "title": np.array("msc k=50: chair/test-000"),
+        "png": np.frombuffer(b"the cell's picture", dtype=np.uint8),
+    }
+    assert spread_picture(arrays, "msc k=50: chair/test-000") == data_uri(b"the cell's picture")
+    drawn = spread_picture(arrays, "msc-renamed k=50: chair/test-000")
+    png = base64.b64decode(drawn.split(",", 1)[1])
+    assert png.startswith(b"\x89PNG") and not is_blank(png)
+    del arrays["title"]
+    assert spread_picture(arrays, "msc k=50: chair/test-000") != data_uri(b"the cell's picture")
