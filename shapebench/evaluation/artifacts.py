@@ -33,8 +33,8 @@ def log_cell_artifacts(
     """The per-object table, the contexts, and for the pictured objects their completed
     clouds (``completions/*.ply``) and pictures (``pictures/<object>.png``, drawn from the
     arrays kept beside it as ``.npz``: context, completion, ground truth, spread, and the
-    picture's caption as ``title``); when
-    pictured objects failed, ``spare`` successes fill the ``.ply`` examples up."""
+    picture's caption as ``title``); when pictured objects failed, ``spare`` successes fill
+    the ``.ply`` examples up."""
     import trimesh
 
     from shapebench.evaluation.pictures import file_stem, picture_arrays, picture_png

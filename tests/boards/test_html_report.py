@@ -312,8 +312,10 @@ def test_posterior_samples_show_as_spread_pictures_in_the_report(tmp_path):
     # The cell logged the picture's caption beside its arrays, and the report embeds the PNG
     # the cell drew with that caption instead of drawing it again.
     assert str(arrays["title"]) == "posterior k=50: box"
+    from shapebench.boards.report_pictures import data_uri
+
     logged = Path(client.download_artifacts(cells[0].run_id, "pictures/box.png", str(tmp_path)))
-    uri = "data:image/png;base64," + base64.b64encode(logged.read_bytes()).decode("ascii")
+    uri = data_uri(logged.read_bytes())
     assert f'<img alt="posterior, 50 points: box" src="{uri}">' in text
     assert text.count('<img alt="qualitative grid') == 2
     print(f"report built in {seconds:.1f} s")
