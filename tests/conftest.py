@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -76,6 +77,13 @@ def load_benchmark(name: str):
 
 
 def pip_install_to(target: Path, project: Path) -> Path:
+    # pip builds a local project in its own folder (build/, *.egg-info): two xdist workers
+    # installing one plugin at once then share build/bdist.*/wheel, and the second build fails
+    # on the first one's files ("File exists"), and a killed build leaves them for the next.
+    # Each install builds a copy of its own, so the checkout is never written to.
+    source = target.with_name(f"{target.name}-src")
+    shutil.copytree(project, source, ignore=shutil.ignore_patterns("build", "*.egg-info"))
+    project = source
     subprocess.run(
         [
             sys.executable,
