@@ -256,7 +256,7 @@ def time_row(row: str, args: argparse.Namespace, sizes: list[int], workdir: Path
 
     from shapebench.api.contexts import ContextStore
     from shapebench.api.protocol import Protocol
-    from shapebench.evaluation.completion import subnormals_flushed
+    from shapebench.evaluation.completion import keep_freed_memory, subnormals_flushed
     from shapebench.evaluation.scoring import score
     from shapebench.registry.discovery import get_registry
     from shapebench.registry.resolve import resolve_metrics
@@ -282,6 +282,7 @@ def time_row(row: str, args: argparse.Namespace, sizes: list[int], workdir: Path
     if resolution is not None:
         out.notes += f"mesh_resolution {resolution}  "
     field_points = 0.0
+    keep_freed_memory()  # as the runner completes (complete_chunk)
     with subnormals_flushed():  # as the runner completes (complete_chunk); it scores unflushed
         method.complete_batch(contexts[sizes[0]][:1], n_points)  # warm-up: imports, allocations
     with stages_timed(timer, method):

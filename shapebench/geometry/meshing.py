@@ -42,11 +42,20 @@ box; a surface that leaves the box is cut open there.
 
 Memory: the evaluated values and the filled volume are ``(resolution + 1)^3`` float32 arrays
 (68 MB each at 256, 540 MB at 512); the bookkeeping around them is about 1 s at 256.
+
+Points per field call (``batch_size``): by default :data:`CPU_BATCH` (4,096) unless CUDA is
+initialised in the process, then :data:`GPU_BATCH` (65,536). A CPU decoder is an MLP evaluated
+point by point; in batches of 4,096 points its activations (4,096 x width floats) stay in the
+CPU's caches, and its elementwise activations, not its matrix products, were most of its time in
+batches of 65,536: the same decoder values bit for bit, 1.4x (an 8x512 decoder) to 1.8x (the
+standard profile's 4x128) faster (benchmarks/README.md, "Points per field call"). A GPU wants few,
+large calls, and its results there are left as they were.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -65,6 +74,22 @@ _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)],
 _SUBGRID = np.array(
     [[i, j, k] for i in (0, 1, 2) for j in (0, 1, 2) for k in (0, 1, 2)], dtype=np.int64
 )
+
+
+#: Points per field call on a CPU: a decoder's activations stay in the CPU's caches.
+CPU_BATCH = 4096
+#: Points per field call when CUDA is initialised in the process: few, large kernel launches.
+GPU_BATCH = 65536
+
+
+def default_batch_size() -> int:
+    """:data:`GPU_BATCH` when CUDA is initialised in this process (a GPU decoder), else
+    :data:`CPU_BATCH`. torch is not imported here: a process that has not imported it meshes a
+    numpy field, on the CPU."""
+    torch = sys.modules.get("torch")
+    cuda = getattr(torch, "cuda", None) if torch is not None else None
+    initialised = getattr(cuda, "is_initialized", None)
+    return GPU_BATCH if callable(initialised) and initialised() else CPU_BATCH
 
 
 class NoSurfaceError(ValueError):
@@ -119,7 +144,7 @@ def extract_mesh(
     level: float = 0.0,
     inside_is_negative: bool = True,
     coarse: int = 32,
-    batch_size: int = 65536,
+    batch_size: int | None = None,
     max_faces: int = 2_000_000,
     safety: float = 1.5,
     dense: bool = False,
@@ -127,18 +152,20 @@ def extract_mesh(
     """Mesh the ``level`` set of ``field`` inside ``[-bound, bound]^3``.
 
     ``field`` maps an ``(n, 3)`` float32 array of points to ``n`` values and is called with at
-    most ``batch_size`` points at a time (wrap a torch decoder in ``torch.no_grad`` outside this
-    module). ``inside_is_negative=True`` for signed distances; ``False`` for occupancies or
-    logits, where values above ``level`` (e.g. the threshold tau) are inside. ``resolution`` is
-    the number of cells per axis (see the module docstring); ``coarse`` is that of the first
-    level and must divide it by a power of two. ``safety`` scales the band, in cell diagonals, in
-    which a cell is refined although its corners do not change sign (0: sign changes only).
-    ``dense=True`` evaluates every grid point instead: the reference the refinement must match.
+    most ``batch_size`` points at a time (default: :func:`default_batch_size`; wrap a torch
+    decoder in ``torch.no_grad`` outside this module). ``inside_is_negative=True`` for signed
+    distances; ``False`` for occupancies or logits, where values above ``level`` (e.g. the
+    threshold tau) are inside. ``resolution`` is the number of cells per axis (see the module
+    docstring); ``coarse`` is that of the first level and must divide it by a power of two.
+    ``safety`` scales the band, in cell diagonals, in which a cell is refined although its
+    corners do not change sign (0: sign changes only). ``dense=True`` evaluates every grid point
+    instead: the reference the refinement must match.
 
     Raises :class:`NoSurfaceError` when nothing crosses ``level`` and :class:`MeshingError` on
     non-finite values or a mesh with more than ``max_faces`` faces.
     """
     start = time.perf_counter()
+    batch_size = default_batch_size() if batch_size is None else batch_size
     _check_arguments(resolution, bound, coarse, batch_size, safety, dense)
     grid = _Grid(
         resolution, float(bound), float(level), 1.0 if inside_is_negative else -1.0, int(batch_size)

@@ -203,3 +203,26 @@ def test_sample_mesh_points_is_seeded_and_on_the_surface():
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, sample_mesh_points(mesh, 5000, seed=4))
     assert np.abs(np.linalg.norm(a, axis=1) - 0.5).max() < voxel(32)
+
+
+def test_a_decoder_meshes_to_the_same_mesh_whatever_the_points_per_call():
+    """The default points per call on a CPU (4,096) is a speed choice: an MLP decoder evaluates
+    each point alone, so its values, and the mesh, are those of 65,536-point calls bit for bit."""
+    torch = pytest.importorskip("torch")
+    from shapebench.geometry.meshing import CPU_BATCH, GPU_BATCH, default_batch_size
+    from shapebench.implicit.networks import IGRDecoder
+
+    torch.manual_seed(0)
+    decoder = IGRDecoder(64, 128, 4, radius_init=0.5).eval()
+    z = torch.randn(1, 64) * 0.01
+
+    @torch.no_grad()
+    def field(p: np.ndarray) -> np.ndarray:
+        return decoder.forward_shared(z, torch.from_numpy(p)[None])[0].numpy()
+
+    assert not torch.cuda.is_initialized() and default_batch_size() == CPU_BATCH
+    small, small_stats = extract_mesh(field, resolution=64)
+    large, large_stats = extract_mesh(field, resolution=64, batch_size=GPU_BATCH)
+    assert small_stats.evaluations == large_stats.evaluations > CPU_BATCH
+    np.testing.assert_array_equal(small.vertices, large.vertices)
+    np.testing.assert_array_equal(small.faces, large.faces)
