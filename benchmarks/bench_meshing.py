@@ -1,7 +1,7 @@
 """Multiresolution vs dense marching cubes on a realistic neural SDF decoder.
 
     python benchmarks/bench_meshing.py [--skip-dense-256] [--bf16] [--resolutions 128,256]
-        [--coarse 32] [--safety 1.5] [--points 30000] [--batch-size 65536] [--seed 0]
+        [--coarse 32] [--safety 1.5] [--points 30000] [--batch-size N] [--seed 0]
         [--device cpu|cuda]
 
 IGR, DeepSDF, MSC and OccNet turn a completion into a mesh by evaluating an MLP on a grid, and on
@@ -38,7 +38,12 @@ import numpy as np
 import torch
 from torch import nn
 
-from shapebench.geometry.meshing import ExtractionStats, extract_mesh, sample_mesh_points
+from shapebench.geometry.meshing import (
+    ExtractionStats,
+    default_batch_size,
+    extract_mesh,
+    sample_mesh_points,
+)
 from shapebench.geometry.nearest import nearest_distances
 
 BOUND = 1.05
@@ -195,7 +200,12 @@ def main() -> None:
     parser.add_argument("--coarse", type=int, default=32)
     parser.add_argument("--safety", type=float, default=1.5)
     parser.add_argument("--points", type=int, default=30_000, help="points per mesh for Chamfer")
-    parser.add_argument("--batch-size", type=int, default=65536)
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=None,
+        help="points per decoder call [the extractor's: 4,096 on a CPU, 65,536 with CUDA]",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu", help="where the decoder runs: cpu or cuda")
     args = parser.parse_args()
@@ -205,6 +215,8 @@ def main() -> None:
     device = torch.device(args.device)
     decoder = GeometricInitMLP().eval().to(device)
     field = make_field(decoder, args.bf16, device)
+    if args.batch_size is None:  # after the decoder's move: CUDA is initialised on a GPU run
+        args.batch_size = default_batch_size()
     # Warm-up: first-call allocations, and on a GPU the kernels' first launch at full batch size.
     field(np.zeros((args.batch_size, 3), dtype=np.float32))
     precision = "bf16 autocast" if args.bf16 else "float32"

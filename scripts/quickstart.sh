@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Set everything up and run the main job: the paper's methods on the built-in synthetic
-# benchmark at context sizes 50, 100, 300 and 1000 with the shipped (standard-profile) weights,
-# logged to the embedded MLflow store, then the leaderboard tables and the HTML report.
+# Install shapebench (scripts/setup.sh --runtime: without the test tools) and run the main job:
+# the paper's methods on the built-in synthetic benchmark at context sizes 50, 100, 300 and 1000
+# with the shipped (standard-profile) weights, logged to the embedded MLflow store, then the
+# leaderboard tables and the HTML report.
 # Rerunning skips finished cells; Ctrl-C and rerun resumes.
 #
 #   bash scripts/quickstart.sh          # 4 test objects per category (60), seed 0's weights,
@@ -17,7 +18,7 @@ case "${1:-}" in
     --full) size=() out=leaderboards ;;
     *) echo "usage: bash scripts/quickstart.sh [--full]" >&2; exit 2 ;;
 esac
-bash scripts/setup.sh
+bash scripts/setup.sh --runtime  # the tests' tools too: bash scripts/setup.sh
 .venv/bin/shapebench sweep configs/sweeps/default.yaml "${size[@]}" --launcher local -j 2
 .venv/bin/shapebench leaderboard --dataset synthetic --out "$out"
 .venv/bin/shapebench report --dataset synthetic --out "$out"

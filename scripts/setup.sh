@@ -9,8 +9,18 @@
 # build for their platform first, and this script pins it with a constraints file so that no
 # dependency can replace it (an unpinned torch would pull a newer release with CUDA wheels).
 # Without torch, the CPU build torch==2.13.0 is installed.
+#
+#   bash scripts/setup.sh             # shapebench, its dependencies and the test extras (CI's)
+#   bash scripts/setup.sh --runtime   # without the test extras (pytest, linters, docs site):
+#                                     # what running shapebench needs; scripts/quickstart.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
+EXTRAS="[test]"
+case "${1:-}" in
+    "") ;;
+    --runtime) EXTRAS="" ;;
+    *) echo "usage: bash scripts/setup.sh [--runtime]" >&2; exit 2 ;;
+esac
 VENV="${SHAPEBENCH_VENV:-.venv}"
 PY="${PYTHON:-python3}"
 
@@ -37,5 +47,5 @@ if [ "${SHAPEBENCH_UNLOCKED:-0}" = 1 ]; then
   LOCK=()
   echo "[setup] SHAPEBENCH_UNLOCKED=1: newest versions allowed by pyproject.toml, not constraints.txt"
 fi
-pip_ install -q -c "$CONSTRAINTS" "${LOCK[@]}" -e ".[test]"
+pip_ install -q -c "$CONSTRAINTS" "${LOCK[@]}" -e ".$EXTRAS"
 echo "[setup] done: activate with 'source $VENV/bin/activate'"

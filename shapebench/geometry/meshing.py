@@ -44,12 +44,11 @@ Memory: the evaluated values and the filled volume are ``(resolution + 1)^3`` fl
 (68 MB each at 256, 540 MB at 512); the bookkeeping around them is about 1 s at 256.
 
 Points per field call (``batch_size``): by default :data:`CPU_BATCH` (4,096) unless CUDA is
-initialised in the process, then :data:`GPU_BATCH` (65,536). A CPU decoder is an MLP evaluated
-point by point; in batches of 4,096 points its activations (4,096 x width floats) stay in the
-CPU's caches, and its elementwise activations, not its matrix products, were most of its time in
-batches of 65,536: the same decoder values bit for bit, 1.4x (an 8x512 decoder) to 1.8x (the
-standard profile's 4x128) faster (benchmarks/README.md, "Points per field call"). A GPU wants few,
-large calls, and its results there are left as they were.
+initialised in the process, then :data:`GPU_BATCH` (65,536). A decoder evaluates each point alone,
+so the values do not depend on it. On a CPU, 4,096 points keep a decoder's activations (4,096 x
+width floats) in the caches, where 65,536 streamed them from memory: the standard rows' field
+evaluations 1.3x to 1.7x faster (benchmarks/README.md, "Points per field call"). A GPU wants few,
+large calls; its meshing is as it was.
 """
 
 from __future__ import annotations
