@@ -46,8 +46,9 @@ def subnormals_flushed() -> Iterator[None]:
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _MMAP_THRESHOLD = 64 << 20
 _TRIM_THRESHOLD = 256 << 20
-#: The environment variables with which a user tunes glibc's allocator: set, it is left alone.
-_ALLOCATOR_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_")
+#: The prefix of the environment variables with which a user tunes glibc's allocator
+#: (``MALLOC_TRIM_THRESHOLD_``, ``MALLOC_ARENA_MAX``...): one set, the allocator is left alone.
+_ALLOCATOR_SETTINGS = "MALLOC_"
 _allocator_kept: bool | None = None
 
 
@@ -61,8 +62,8 @@ def keep_freed_memory() -> bool:
     its trim threshold (128 kB): each such tensor then costs page faults on first touch. Served
     from the heap and kept (thresholds of 64 MB and 256 MB), an IGR run spent 0.8 s of system
     time instead of 4.6 and ran 1.06x faster, with the same peak memory (benchmarks/README.md,
-    "Points per field call"). A process that sets its own allocator thresholds (``MALLOC_*_``
-    variables or ``glibc.malloc`` tunables), or that is not linked against glibc, is left alone.
+    "Points per field call"). A process whose user tunes the allocator (a ``MALLOC_*`` variable
+    or ``glibc.malloc`` tunables), or that is not linked against glibc, is left alone.
     """
     global _allocator_kept
     if _allocator_kept is None:
@@ -73,7 +74,7 @@ def keep_freed_memory() -> bool:
 def _set_allocator_thresholds() -> bool:
     if not sys.platform.startswith("linux"):
         return False
-    if any(v in os.environ for v in _ALLOCATOR_SETTINGS):
+    if any(name.startswith(_ALLOCATOR_SETTINGS) for name in os.environ):
         return False
     if "glibc.malloc" in os.environ.get("GLIBC_TUNABLES", ""):
         return False
